@@ -1,0 +1,1 @@
+"""Offscreen rendering (installed as ``torchhand.render``). pyrender is imported lazily by the entry points."""

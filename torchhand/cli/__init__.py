@@ -1,0 +1,59 @@
+"""The ``torchhand`` command line.
+
+Each subcommand lives in its own module ``torchhand/cli/<name>_cmd.py`` exposing ``register(subparsers)``, which
+adds its parser and sets ``func(args) -> int``. ``main`` turns every :class:`~torchhand.errors.TorchhandError`
+into one line on stderr and exit code 2; a traceback means a bug.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import TorchhandError
+
+# Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
+_COMMANDS = ("scene", "hand", "inspect")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="torchhand",
+        description="Physically plausible hand-motion synthesis on a batched PyTorch core.",
+    )
+    parser.add_argument("--version", action="version", version=_version())
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _COMMANDS:
+        try:
+            module = importlib.import_module(f".{name}_cmd", __name__)
+        except ModuleNotFoundError as err:
+            if err.name and err.name.endswith(f"{name}_cmd"):
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except TorchhandError as err:
+        print(f"torchhand: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("torchhand: interrupted", file=sys.stderr)
+        return 130
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return f"torchhand {__version__}"
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
