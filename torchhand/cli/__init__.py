@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from ..errors import TorchhandError
@@ -44,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     except TorchhandError as err:
         print(f"torchhand: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head` and the like
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print("torchhand: interrupted", file=sys.stderr)
         return 130

@@ -1,0 +1,53 @@
+"""Shared fixtures: reference-data location, dtypes, deterministic generators. TF32 is off in tests."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+torch.backends.cuda.matmul.allow_tf32 = False
+torch.backends.cudnn.allow_tf32 = False
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """``$TORCHHAND_SHARED_DATA`` or ``<repo>/../shared/data``."""
+    return Path(os.environ.get("TORCHHAND_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def shared_path(*parts: str) -> Path:
+    """A path under the shared reference data; skips the test with a reason when it is absent."""
+    p = shared_data_dir().joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"reference data not found: {p} (set TORCHHAND_SHARED_DATA)")
+    return p
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    d = shared_data_dir()
+    if not d.exists():
+        pytest.skip(f"reference data not found: {d} (set TORCHHAND_SHARED_DATA)")
+    return d
+
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.fixture(params=DEVICES)
+def device(request) -> str:
+    return request.param
+
+
+@pytest.fixture(params=[torch.float32, torch.float64], ids=["f32", "f64"])
+def dtype(request) -> torch.dtype:
+    return request.param
+
+
+@pytest.fixture
+def gen() -> torch.Generator:
+    return torch.Generator().manual_seed(1234)
