@@ -20,7 +20,8 @@ from typing import NamedTuple
 
 import torch
 
-__all__ = ["Chain", "JOINT_HINGE", "JOINT_SLIDE", "forward_kinematics", "joint_frames", "point_jacobian"]
+__all__ = ["Chain", "JOINT_HINGE", "JOINT_SLIDE", "forward_kinematics", "joint_frames", "point_jacobian",
+           "fk_and_point_jacobian"]
 
 JOINT_HINGE = 0
 JOINT_SLIDE = 1
@@ -51,86 +52,107 @@ class Chain(NamedTuple):
     levels: tuple
 
 
-def _joint_transforms(chain: Chain, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rotation (B, D, 3, 3) and translation (B, D, 3) of every joint's motion for angles/offsets ``q (B, D)``."""
-    axis = chain.joint_axis.to(q)  # (D, 3)
-    anchor = chain.joint_anchor.to(q)
-    hinge = (chain.joint_type == JOINT_HINGE).unsqueeze(-1)  # (D, 1)
-    # Rodrigues: R = I + sin K + (1 - cos) K^2, evaluated with outer products to stay batched.
-    s = torch.sin(q).unsqueeze(-1).unsqueeze(-1)  # (B, D, 1, 1)
-    c = torch.cos(q).unsqueeze(-1).unsqueeze(-1)
+# Internally every quantity is laid out batch-LAST: rotations (..., 3, 3, B), vectors (..., 3, B). Products of
+# 3x3 blocks are then three broadcast multiply-adds over contiguous length-B rows, which vectorises well on CPUs
+# (tiny batched matmuls do not) and is just as good on GPUs. The public functions take and return batch-first.
+
+
+def _mm(Ra: torch.Tensor, Rb: torch.Tensor) -> torch.Tensor:
+    """Ra @ Rb for batch-last rotations (..., 3, 3, B) (either may broadcast over B with size 1)."""
+    return Ra[..., :, 0:1, :] * Rb[..., 0:1, :, :] + Ra[..., :, 1:2, :] * Rb[..., 1:2, :, :] \
+        + Ra[..., :, 2:3, :] * Rb[..., 2:3, :, :]
+
+
+def _mv(R: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """R @ v for batch-last R (..., 3, 3, B) and v (..., 3, B)."""
+    return R[..., :, 0, :] * v[..., 0:1, :] + R[..., :, 1, :] * v[..., 1:2, :] + R[..., :, 2, :] * v[..., 2:3, :]
+
+
+def _joint_transforms(chain: Chain, qT: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rotation (D, 3, 3, B) and translation (D, 3, B) of every joint for batch-last values ``qT (D, B)``."""
+    axis = chain.joint_axis.to(qT)  # (D, 3)
+    anchor = chain.joint_anchor.to(qT)
+    D = axis.shape[0]
+    hinge = (chain.joint_type == JOINT_HINGE).view(D, 1, 1)
+    # Rodrigues: R = cos I + (1 - cos) a a^T + sin [a]x.
+    s = torch.sin(qT).unsqueeze(1).unsqueeze(1)  # (D, 1, 1, B)
+    c = torch.cos(qT).unsqueeze(1).unsqueeze(1)
     x, y, z = axis.unbind(-1)
     zero = torch.zeros_like(x)
-    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(-1, 3, 3)  # (D, 3, 3)
-    K2 = axis.unsqueeze(-1) * axis.unsqueeze(-2) - torch.eye(3, dtype=q.dtype, device=q.device)
-    R_hinge = torch.eye(3, dtype=q.dtype, device=q.device) + s * K + (1 - c) * K2  # (B, D, 3, 3)
-    eye = torch.eye(3, dtype=q.dtype, device=q.device).expand_as(R_hinge)
+    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(D, 3, 3, 1)
+    aaT = (axis.unsqueeze(-1) * axis.unsqueeze(-2)).unsqueeze(-1)  # (D, 3, 3, 1)
+    eye = torch.eye(3, dtype=qT.dtype, device=qT.device).reshape(1, 3, 3, 1)
+    R_hinge = c * eye + (1 - c) * aaT + s * K
     R = torch.where(hinge.unsqueeze(-1), R_hinge, eye)
-    t_hinge = anchor - (R_hinge @ anchor.unsqueeze(-1)).squeeze(-1)
-    t_slide = axis * q.unsqueeze(-1)
+    a = anchor.unsqueeze(-1)  # (D, 3, 1)
+    t_hinge = a - _mv(R_hinge, a)
+    t_slide = axis.unsqueeze(-1) * qT.unsqueeze(1)
     t = torch.where(hinge, t_hinge, t_slide)
     return R, t
 
 
-def _compose(Ra, ta, Rb, tb):
-    """(Ra, ta) @ (Rb, tb) for rigid transforms split into rotation (..., 3, 3) and translation (..., 3)."""
-    return Ra @ Rb, ta + (Ra @ tb.unsqueeze(-1)).squeeze(-1)
-
-
 def _kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor, need_joints: bool):
+    """Batch-last world rotations (L, 3, 3, B), translations (L, 3, B) and, if asked, each joint's world axis and
+    anchor (D, 3, B)."""
     B, D = q.shape
     L = chain.link_parent.shape[0]
     dtype, device = q.dtype, q.device
-    Rj, tj = _joint_transforms(chain, q)
-    # Pad with an identity joint at index D so padded entries of link_joints compose to nothing.
-    Rj = torch.cat([Rj, torch.eye(3, dtype=dtype, device=device).expand(B, 1, 3, 3)], dim=1)
-    tj = torch.cat([tj, q.new_zeros(B, 1, 3)], dim=1)
+    Rj, tj = _joint_transforms(chain, q.t())
+    # An identity joint at index D absorbs the padding of link_joints.
+    Rj = torch.cat([Rj, torch.eye(3, dtype=dtype, device=device).reshape(1, 3, 3, 1).expand(1, 3, 3, B)], dim=0)
+    tj = torch.cat([tj, q.new_zeros(1, 3, B)], dim=0)
 
     offset = chain.link_offset.to(q)
-    R_loc = offset[:, :3, :3].expand(B, L, 3, 3)
-    t_loc = offset[:, :3, 3].expand(B, L, 3)
-    # Transform from the link's parent frame to just before each joint: (B, D, ...), filled per joint slot.
-    R_pre = t_pre = None
+    R_loc = offset[:, :3, :3].unsqueeze(-1)  # (L, 3, 3, 1): broadcasts until a joint moves it
+    t_loc = offset[:, :3, 3].unsqueeze(-1)
     if need_joints:
-        R_pre = q.new_zeros(B, D + 1, 3, 3)
-        t_pre = q.new_zeros(B, D + 1, 3)
+        axis_p = q.new_zeros(D + 1, 3, B)  # joint axis / anchor in the link's parent frame
+        anchor_p = q.new_zeros(D + 1, 3, B)
+        axis = torch.cat([chain.joint_axis.to(q), q.new_zeros(1, 3)]).unsqueeze(-1)
+        anchor = torch.cat([chain.joint_anchor.to(q), q.new_zeros(1, 3)]).unsqueeze(-1)
     for k in range(chain.link_joints.shape[1]):
         idx = chain.link_joints[:, k]  # (L,)
         if need_joints:
-            R_pre = R_pre.index_copy(1, idx, R_loc)
-            t_pre = t_pre.index_copy(1, idx, t_loc)
-        R_loc, t_loc = _compose(R_loc, t_loc, Rj[:, idx], tj[:, idx])
+            Rb = R_loc.expand(L, 3, 3, B)
+            axis_p = axis_p.index_copy(0, idx, _mv(Rb, axis[idx]))
+            anchor_p = anchor_p.index_copy(0, idx, _mv(Rb, anchor[idx]) + t_loc)
+        Rk, tk = Rj[idx], tj[idx]
+        t_loc = t_loc + _mv(R_loc, tk)
+        R_loc = _mm(R_loc, Rk)
 
-    R_root = root[:, :3, :3]
-    t_root = root[:, :3, 3]
-    # Walk the tree level by level; each level is one batched compose over its links. Level 0 is the root.
-    R_world = q.new_zeros(B, L, 3, 3)
-    t_world = q.new_zeros(B, L, 3)
+    R_root = root[:, :3, :3].permute(1, 2, 0)  # (3, 3, B)
+    t_root = root[:, :3, 3].t()  # (3, B)
+    R_world = q.new_empty(L, 3, 3, B)
+    t_world = q.new_empty(L, 3, B)
+    # Walk the tree level by level (level 0 is the root link); each level is one broadcast compose.
     for depth, level in enumerate(chain.levels):
         if depth == 0:
-            Rp, tp = R_root.unsqueeze(1), t_root.unsqueeze(1)
+            Rp, tp = R_root.unsqueeze(0), t_root.unsqueeze(0)
         else:
             parent = chain.link_parent[level]
-            Rp, tp = R_world[:, parent], t_world[:, parent]
-        Rl, tl = _compose(Rp, tp, R_loc[:, level], t_loc[:, level])
-        R_world = R_world.index_copy(1, level, Rl)
-        t_world = t_world.index_copy(1, level, tl)
+            Rp, tp = R_world[parent], t_world[parent]
+        Rl = R_loc[level] if R_loc.shape[-1] == B else R_loc[level].expand(-1, 3, 3, B)
+        R_world = R_world.index_copy(0, level, _mm(Rp, Rl))
+        t_world = t_world.index_copy(0, level, tp + _mv(Rp, t_loc[level].expand(-1, 3, B)))
     if not need_joints:
         return R_world, t_world, None, None
-    # World frame of each joint just before its own motion (the axis and anchor are fixed in it).
     parent_of_joint = chain.link_parent[chain.joint_link]  # (D,)
-    is_root = parent_of_joint < 0
+    is_root = (parent_of_joint < 0).view(D, 1, 1)
     pj = parent_of_joint.clamp(min=0)
-    Rp = torch.where(is_root.view(1, -1, 1, 1), R_root.unsqueeze(1), R_world[:, pj])
-    tp = torch.where(is_root.view(1, -1, 1), t_root.unsqueeze(1), t_world[:, pj])
-    Rjw, tjw = _compose(Rp, tp, R_pre[:, :D], t_pre[:, :D])
-    return R_world, t_world, Rjw, tjw
+    Rp = torch.where(is_root.unsqueeze(-1), R_root.unsqueeze(0), R_world[pj])
+    tp = torch.where(is_root, t_root.unsqueeze(0), t_world[pj])
+    axis_w = _mv(Rp, axis_p[:D])
+    anchor_w = _mv(Rp, anchor_p[:D]) + tp
+    return R_world, t_world, axis_w, anchor_w
 
 
 def _homogeneous(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-    bottom = torch.zeros(R.shape[:-2] + (1, 4), dtype=R.dtype, device=R.device)
-    bottom[..., 0, 3] = 1
-    return torch.cat([torch.cat([R, t.unsqueeze(-1)], dim=-1), bottom], dim=-2)
+    """Batch-last (L, 3, 3, B), (L, 3, B) -> batch-first (B, L, 4, 4)."""
+    L, B = R.shape[0], R.shape[-1]
+    top = torch.cat([R, t.unsqueeze(2)], dim=2)  # (L, 3, 4, B)
+    bottom = R.new_zeros(L, 1, 4, B)
+    bottom[:, :, 3] = 1
+    return torch.cat([top, bottom], dim=1).permute(3, 0, 1, 2).contiguous()
 
 
 def forward_kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor) -> torch.Tensor:
@@ -149,10 +171,40 @@ def joint_frames(chain: Chain, q: torch.Tensor, root: torch.Tensor):
 
     returns: (T_world_link (B, L, 4, 4), axis_world (B, D, 3) unit, anchor_world (B, D, 3) metres)
     """
-    R, t, Rj, tj = _kinematics(chain, q, root, need_joints=True)
-    axis = (Rj @ chain.joint_axis.to(q).unsqueeze(-1)).squeeze(-1)
-    anchor = (Rj @ chain.joint_anchor.to(q).unsqueeze(-1)).squeeze(-1) + tj
-    return _homogeneous(R, t), axis, anchor
+    R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)
+    return _homogeneous(R, t), axis.permute(2, 0, 1), anchor.permute(2, 0, 1)
+
+
+def fk_and_point_jacobian(
+    chain: Chain,
+    q: torch.Tensor,
+    root: torch.Tensor,
+    link_index: torch.Tensor,
+    points_local: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Link poses, world positions of link-fixed points and their analytic Jacobian, in one pass.
+
+    q:            (B, D), radians / metres
+    root:         (B, 4, 4)
+    link_index:   link of each point, (P,), long
+    points_local: points in their link's frame, (P, 3) or (B, P, 3), metres
+    returns: (T_world_link (B, L, 4, 4), points_world (B, P, 3) metres,
+              jacobian (B, P, 3, D) metres per radian (hinge) / per metre (slide))
+    """
+    R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)  # batch-last
+    B = q.shape[0]
+    p = points_local.to(q)
+    p = p.unsqueeze(-1) if p.dim() == 2 else p.permute(1, 2, 0)  # (P, 3, 1 | B)
+    x = _mv(R[link_index], p) + t[link_index]  # (P, 3, B)
+    r = x.unsqueeze(1) - anchor.unsqueeze(0)  # (P, D, 3, B)
+    a = axis.unsqueeze(0)  # (1, D, 3, B)
+    cross = torch.stack([a[:, :, 1] * r[:, :, 2] - a[:, :, 2] * r[:, :, 1],
+                         a[:, :, 2] * r[:, :, 0] - a[:, :, 0] * r[:, :, 2],
+                         a[:, :, 0] * r[:, :, 1] - a[:, :, 1] * r[:, :, 0]], dim=2)
+    hinge = (chain.joint_type == JOINT_HINGE).view(1, -1, 1, 1)
+    lin = torch.where(hinge, cross, a)
+    lin = lin * chain.support[link_index].to(q.dtype).view(lin.shape[0], -1, 1, 1)  # (P, D, 3, B)
+    return _homogeneous(R, t), x.permute(2, 0, 1), lin.permute(3, 0, 2, 1)
 
 
 def point_jacobian(
@@ -162,23 +214,9 @@ def point_jacobian(
     link_index: torch.Tensor,
     points_local: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Analytic Jacobian of points fixed on links with respect to the joint values.
+    """Analytic Jacobian of points fixed on links: (points_world (B, P, 3), jacobian (B, P, 3, D)).
 
-    q:            (B, D), radians / metres
-    root:         (B, 4, 4)
-    link_index:   link of each point, (P,), long
-    points_local: points in their link's frame, (P, 3) or (B, P, 3), metres
-    returns: (points_world (B, P, 3) metres, jacobian (B, P, 3, D) metres per radian / per metre)
+    See :func:`fk_and_point_jacobian` for the arguments.
     """
-    T, axis, anchor = joint_frames(chain, q, root)
-    T_l = T[:, link_index]  # (B, P, 4, 4)
-    p = points_local.to(q)
-    if p.dim() == 2:
-        p = p.unsqueeze(0)
-    x = (T_l[..., :3, :3] @ p.unsqueeze(-1)).squeeze(-1) + T_l[..., :3, 3]  # (B, P, 3)
-    hinge = (chain.joint_type == JOINT_HINGE).view(1, 1, -1, 1)
-    a = axis.unsqueeze(1)  # (B, 1, D, 3)
-    lin = torch.where(hinge, torch.linalg.cross(a.expand(-1, x.shape[1], -1, -1), x.unsqueeze(2) - anchor.unsqueeze(1)),
-                      a.expand(-1, x.shape[1], -1, -1))  # (B, P, D, 3)
-    mask = chain.support[link_index].to(q.dtype).unsqueeze(-1)  # (P, D, 1)
-    return x, (lin * mask).transpose(-1, -2)
+    _, x, J = fk_and_point_jacobian(chain, q, root, link_index, points_local)
+    return x, J

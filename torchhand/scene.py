@@ -1,0 +1,704 @@
+"""Scenes: an object trajectory, one or two wrist trajectories, and the environment they act in.
+
+A :class:`Scene` is the input of hand-motion synthesis: the object's 6-DOF motion and the wrists' 6-DOF motion are
+given; the fingers are what torchhand fills in. Conventions (see :mod:`torchhand.conventions`): world z-up,
+metres, seconds, kilograms; poses are 4x4 rigid transforms ``T_world_frame`` (column vectors), float64. The hand
+frame of a :class:`HandTrack` has its origin at the wrist joint centre, +x toward the fingertips, the palm facing
+-z, +y toward the thumb for a right hand (a left hand is mirrored through the x-z plane: thumb toward -y).
+
+Scenes come from :func:`load_scene` (a built-in name, see :mod:`torchhand.scenes`, or a scene directory, see
+``docs/scene_format.md``), from :func:`torchhand.mocap.import_mocap_scene`, or are built directly. Building a
+:class:`Scene` runs the cheap checks (types, shapes, ranges); :meth:`Scene.validate` adds the value checks that
+force a host sync (finite, rigid transforms) and is run by every loader.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import shutil
+import tempfile
+import tomllib
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .conventions import check_transforms
+from .errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
+                     TorchhandError, UnknownNameError)
+from .objects import RigidObject, load_object
+
+__all__ = [
+    "SIDES",
+    "FORMAT_VERSION",
+    "HandTrack",
+    "Environment",
+    "Scene",
+    "EnvContacts",
+    "environment_contacts",
+    "load_scene",
+    "interpolate_poses",
+]
+
+SIDES = ("right", "left")
+"""Hand sides, in the order hands are stored in a scene file."""
+
+FORMAT_VERSION = 1
+"""Version of the scene directory format written by :meth:`Scene.export` (``docs/scene_format.md``)."""
+
+DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+"""Gravity, (3,), world, m/s^2."""
+
+_SCENE_TOML = "scene.toml"
+_MESH_FILE = "object.obj"
+_TRAJ_FILE = "trajectories.npz"
+
+
+def _default_gravity() -> torch.Tensor:
+    return torch.tensor(DEFAULT_GRAVITY, dtype=torch.float64)
+
+
+def _check_pose_tensor(x, name: str, T: int | None = None) -> None:
+    if not isinstance(x, torch.Tensor):
+        raise InputTypeError(f"{name}: expected a torch.Tensor (T, 4, 4), got {type(x).__name__}")
+    if x.dim() != 3 or tuple(x.shape[1:]) != (4, 4) or x.shape[0] < 1:
+        raise ShapeError(f"{name}: expected shape (T, 4, 4) with T >= 1, got {tuple(x.shape)}")
+    if T is not None and x.shape[0] != T:
+        raise ShapeError(f"{name}: expected T = {T} frames (as object_pose), got {x.shape[0]}")
+    if not x.is_floating_point():
+        raise InputTypeError(f"{name}: expected a floating-point tensor, got dtype {x.dtype}")
+
+
+def _check_number(value, name: str, *, low: float | None = None, strict: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputTypeError(f"{name}: expected a number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v) or (low is not None and (v <= low if strict else v < low)):
+        bound = "" if low is None else f" {'>' if strict else '>='} {low:g}"
+        raise InputValueError(f"{name}: expected a finite number{bound}, got {value}")
+    return v
+
+
+@dataclass(frozen=True, eq=False)
+class HandTrack:
+    """The given motion of one wrist.
+
+    Fields
+        side: "right" or "left"
+        wrist_pose: hand (wrist) frame poses ``T_world_hand``, (T, 4, 4), world, metres, float64
+        length: hand length, wrist joint centre to middle fingertip, float, metres (default 0.19)
+    """
+
+    side: str
+    wrist_pose: torch.Tensor
+    length: float = 0.19
+
+    def __post_init__(self):
+        if self.side not in SIDES:
+            raise InputValueError(f"HandTrack.side: expected 'right' or 'left', got {self.side!r}")
+        _check_pose_tensor(self.wrist_pose, f"HandTrack.wrist_pose ({self.side})")
+        object.__setattr__(self, "length", _check_number(self.length, "HandTrack.length", low=0.0, strict=True))
+
+    @property
+    def T(self) -> int:
+        """Number of frames."""
+        return int(self.wrist_pose.shape[0])
+
+
+@dataclass(frozen=True)
+class Environment:
+    """What the object can touch besides the hands.
+
+    Fields
+        table: whether there is a horizontal table plane, bool
+        table_height: z of the table plane, float, world, metres (ignored when ``table`` is False)
+        friction: object-table Coulomb friction coefficient, float, >= 0
+    """
+
+    table: bool = False
+    table_height: float = 0.0
+    friction: float = 0.5
+
+    def __post_init__(self):
+        if not isinstance(self.table, (bool, np.bool_)):
+            raise InputTypeError(f"Environment.table: expected a bool, got {type(self.table).__name__}")
+        object.__setattr__(self, "table", bool(self.table))
+        object.__setattr__(self, "table_height", _check_number(self.table_height, "Environment.table_height"))
+        object.__setattr__(self, "friction", _check_number(self.friction, "Environment.friction", low=0.0))
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """An object trajectory, one or two wrist trajectories and their environment.
+
+    Fields
+        name: scene name, str
+        object: the manipulated rigid object (mesh in the object frame, metres; mass, kg), RigidObject
+        object_pose: object frame poses ``T_world_object``, (T, 4, 4), world, metres, float64
+        fps: frames per second, float, > 0
+        hands: the wrist tracks, tuple of 1 or 2 HandTrack with distinct sides, each with T frames
+        friction: hand-object Coulomb friction coefficient, float, >= 0
+        environment: table and its friction, Environment
+        gravity: gravitational acceleration, (3,), world, m/s^2, default (0, 0, -9.81)
+        description: free text, str
+
+    ``T``, ``dt`` and ``duration`` are derived. Update with ``dataclasses.replace``; tensor fields follow
+    :mod:`torchhand._tree` (``tree_to`` moves them to a device).
+    """
+
+    name: str
+    object: RigidObject
+    object_pose: torch.Tensor
+    fps: float
+    hands: tuple[HandTrack, ...]
+    friction: float
+    environment: Environment = field(default_factory=Environment)
+    gravity: torch.Tensor = field(default_factory=_default_gravity)
+    description: str = ""
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise InputValueError(f"Scene.name: expected a non-empty str, got {self.name!r}")
+        if not isinstance(self.object, RigidObject):
+            raise InputTypeError(f"Scene.object: expected a RigidObject, got {type(self.object).__name__}")
+        _check_pose_tensor(self.object_pose, "Scene.object_pose")
+        object.__setattr__(self, "fps", _check_number(self.fps, "Scene.fps", low=0.0, strict=True))
+        object.__setattr__(self, "friction", _check_number(self.friction, "Scene.friction", low=0.0))
+        hands = tuple(self.hands) if isinstance(self.hands, (list, tuple)) else self.hands
+        if not isinstance(hands, tuple) or not all(isinstance(h, HandTrack) for h in hands):
+            raise InputTypeError("Scene.hands: expected a tuple of HandTrack")
+        if not 1 <= len(hands) <= 2:
+            raise InputValueError(f"Scene.hands: expected 1 or 2 hands, got {len(hands)}")
+        if len({h.side for h in hands}) != len(hands):
+            raise InputValueError(f"Scene.hands: sides must be distinct, got {[h.side for h in hands]}")
+        for h in hands:
+            _check_pose_tensor(h.wrist_pose, f"Scene.hands[{h.side}].wrist_pose", self.T)
+        object.__setattr__(self, "hands", hands)
+        if not isinstance(self.environment, Environment):
+            raise InputTypeError(f"Scene.environment: expected an Environment, got {type(self.environment).__name__}")
+        g = self.gravity
+        if not isinstance(g, torch.Tensor):
+            g = torch.as_tensor(np.asarray(g, dtype=np.float64))
+            object.__setattr__(self, "gravity", g)
+        if tuple(g.shape) != (3,):
+            raise ShapeError(f"Scene.gravity: expected shape (3,), got {tuple(g.shape)}")
+        if not isinstance(self.description, str):
+            raise InputTypeError(f"Scene.description: expected a str, got {type(self.description).__name__}")
+
+    # -- derived ------------------------------------------------------------------------------------------------
+
+    @property
+    def T(self) -> int:
+        """Number of frames."""
+        return int(self.object_pose.shape[0])
+
+    @property
+    def dt(self) -> float:
+        """Time step, ``1 / fps``, seconds."""
+        return 1.0 / self.fps
+
+    @property
+    def duration(self) -> float:
+        """Time from the first to the last frame, ``(T - 1) / fps``, seconds."""
+        return (self.T - 1) / self.fps
+
+    @property
+    def sides(self) -> tuple[str, ...]:
+        """Sides of the hands, in the order of ``hands``."""
+        return tuple(h.side for h in self.hands)
+
+    def times(self) -> torch.Tensor:
+        """Frame times ``t_k = k / fps``, (T,), seconds, float64."""
+        return torch.arange(self.T, dtype=torch.float64, device=self.object_pose.device) / self.fps
+
+    def hand(self, side: str) -> HandTrack:
+        """The track of the ``side`` hand; :class:`UnknownNameError` if the scene has no such hand."""
+        for h in self.hands:
+            if h.side == side:
+                return h
+        raise UnknownNameError(f"side: scene '{self.name}' has no {side!r} hand; hands: {', '.join(self.sides)}")
+
+    # -- checks -------------------------------------------------------------------------------------------------
+
+    def validate(self) -> "Scene":
+        """Value checks that force a host sync: finite rigid poses, finite gravity. Returns ``self``.
+
+        Raises:
+            InputValueError: a pose has NaN/inf or a non-orthonormal rotation (message names the field and frame).
+        """
+        check_transforms(self.object_pose, f"scene '{self.name}': object_pose")
+        for h in self.hands:
+            check_transforms(h.wrist_pose, f"scene '{self.name}': wrist_pose_{h.side}")
+        if not bool(torch.isfinite(self.gravity).all()):
+            raise InputValueError(f"scene '{self.name}': gravity must be finite, got {self.gravity.tolist()}")
+        return self
+
+    # -- editing ------------------------------------------------------------------------------------------------
+
+    def with_frames(self, start: int, stop: int) -> "Scene":
+        """The frames ``start <= k < stop`` (Python slice semantics, no negative indices), as a new Scene.
+
+        Raises:
+            InputValueError: unless ``0 <= start < stop <= T``.
+        """
+        for label, v in (("start", start), ("stop", stop)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise InputTypeError(f"{label}: expected an int, got {type(v).__name__}")
+        if not 0 <= start < stop <= self.T:
+            raise InputValueError(f"start, stop: expected 0 <= start < stop <= T = {self.T}, got {start}, {stop}")
+        s = slice(int(start), int(stop))
+        hands = tuple(dataclasses.replace(h, wrist_pose=h.wrist_pose[s].clone()) for h in self.hands)
+        return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands)
+
+    def resample(self, fps: float) -> "Scene":
+        """The same motion sampled at ``fps``: positions interpolated linearly, rotations by slerp.
+
+        The new frames are at ``k / fps`` for ``k = 0 .. floor(duration * fps)``; the last one is at or before the
+        original last frame.
+        """
+        fps = _check_number(fps, "fps", low=0.0, strict=True)
+        n = int(math.floor(self.duration * fps + 1e-9)) + 1
+        times = torch.arange(n, dtype=torch.float64, device=self.object_pose.device) / fps
+        src = self.times()
+        hands = tuple(dataclasses.replace(h, wrist_pose=interpolate_poses(h.wrist_pose, src, times))
+                      for h in self.hands)
+        return dataclasses.replace(self, fps=fps, object_pose=interpolate_poses(self.object_pose, src, times),
+                                   hands=hands)
+
+    def export(self, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
+        """Write the scene as a scene directory (``docs/scene_format.md``) and return its path.
+
+        Everything is written into a temporary directory beside ``directory`` first and then moved in with
+        ``os.replace``, file by file, ``scene.toml`` last; on any failure nothing already in ``directory`` is
+        changed. The mesh is written in metres (scale 1) with the object's mass.
+
+        Args:
+            directory: target directory; created (with parents) if missing.
+            overwrite: replace the scene files already there; without it an existing ``scene.toml``,
+                ``object.obj`` or ``trajectories.npz`` is an :class:`InputValueError`.
+
+        Raises:
+            InputValueError: files already there without ``overwrite``, ``directory`` is a file, or the operating
+                system refused a write (the message carries its reason).
+        """
+        target = Path(directory)
+        if target.exists() and not target.is_dir():
+            raise InputValueError(f"directory: '{target}' exists and is not a directory")
+        names = (_MESH_FILE, _TRAJ_FILE, _SCENE_TOML)
+        if not overwrite:
+            clash = [n for n in names if (target / n).exists()]
+            if clash:
+                raise InputValueError(
+                    f"directory: '{target}' already holds {', '.join(clash)}; pass overwrite=True "
+                    "(CLI: --overwrite) to replace them"
+                )
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
+        except OSError as err:
+            raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
+        try:
+            self._write_files(tmp)
+            target.mkdir(exist_ok=True)
+            for n in names:  # scene.toml last: a reader never sees it before the files it names
+                os.replace(tmp / n, target / n)
+        except OSError as err:
+            raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        return target
+
+    def _write_files(self, out: Path) -> None:
+        import tomli_w
+        import trimesh
+
+        mesh = self.object.mesh
+        text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_color=False,
+                                               include_texture=False, digits=12)
+        (out / _MESH_FILE).write_text(text, encoding="utf-8")
+        arrays = {"object_pose": self.object_pose.detach().cpu().to(torch.float64).numpy()}
+        for h in self.hands:
+            arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
+        with open(out / _TRAJ_FILE, "wb") as f:
+            np.savez(f, **arrays)
+        doc = {
+            "format_version": FORMAT_VERSION,
+            "scene": {
+                "name": self.name,
+                "description": self.description,
+                "fps": float(self.fps),
+                "friction": float(self.friction),
+                "gravity": [float(v) for v in self.gravity.tolist()],
+                "trajectories": _TRAJ_FILE,
+            },
+            "object": {"name": self.object.name, "mesh": _MESH_FILE, "mass": float(self.object.mass),
+                       "scale": 1.0},
+            "environment": {"table": bool(self.environment.table),
+                            "table_height": float(self.environment.table_height),
+                            "friction": float(self.environment.friction)},
+        }
+        text = tomli_w.dumps(doc)
+        for h in sorted(self.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
+            text += "\n[[hands]]\n" + tomli_w.dumps({"side": h.side, "length": float(h.length)})
+        (out / _SCENE_TOML).write_text(text, encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# environment contacts
+
+
+@dataclass(frozen=True, eq=False)
+class EnvContacts:
+    """Object-table support contacts per frame, padded to ``E`` with ``mask``.
+
+    Fields
+        points: contact points on the table plane below the supporting object points, (T, E, 3), world, metres
+        mask: which entries are real contacts, (T, E), bool
+        sliding_velocity: tangential velocity of the object's material point at each contact, (T, E, 3), world,
+            m/s; exactly zero for a static contact (speed below ``static_speed``) and for padding
+        support_index: index into the object's convex-hull vertices, (T, E), int64, -1 for padding
+        normal: contact normal, (3,), world, pointing into the object (+z for a table)
+    """
+
+    points: torch.Tensor
+    mask: torch.Tensor
+    sliding_velocity: torch.Tensor
+    support_index: torch.Tensor
+    normal: torch.Tensor
+
+    @property
+    def count(self) -> torch.Tensor:
+        """Number of contacts per frame, (T,), int64."""
+        return self.mask.sum(dim=-1)
+
+
+def environment_contacts(scene: Scene, tol: float = 0.003, static_speed: float = 1e-3) -> EnvContacts:
+    """Where the object rests on the table in each frame.
+
+    The supporting points are the vertices of the object mesh's convex hull (object frame) whose world height is
+    at most ``tol`` above the table plane (or below it). Velocities are central finite differences of their
+    world positions (one-sided at the ends), with the normal (z) component removed.
+
+    Args:
+        scene: the scene; without a table every frame has no contact (E = 0).
+        tol: height above the table plane that still counts as contact, metres.
+        static_speed: tangential speeds below this are reported as exactly zero (static), m/s.
+
+    Returns:
+        the padded contacts, E = the largest contact count over the frames.
+    """
+    tol = _check_number(tol, "tol", low=0.0)
+    static_speed = _check_number(static_speed, "static_speed", low=0.0)
+    pose = scene.object_pose
+    T, dtype, device = scene.T, pose.dtype, pose.device
+    normal = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=device)
+    if not scene.environment.table:
+        return EnvContacts(pose.new_zeros(T, 0, 3), torch.zeros(T, 0, dtype=torch.bool, device=device),
+                           pose.new_zeros(T, 0, 3), torch.zeros(T, 0, dtype=torch.long, device=device), normal)
+    hull = np.asarray(scene.object.mesh.convex_hull.vertices, dtype=np.float64)
+    V = torch.as_tensor(hull, dtype=dtype, device=device)
+    P = torch.einsum("tij,nj->tni", pose[:, :3, :3], V) + pose[:, None, :3, 3]  # (T, N, 3)
+    h = scene.environment.table_height
+    touching = P[..., 2] - h <= tol
+    vel = torch.zeros_like(P)
+    if T > 1:
+        vel[1:-1] = (P[2:] - P[:-2]) * (0.5 * scene.fps)
+        vel[0] = (P[1] - P[0]) * scene.fps
+        vel[-1] = (P[-1] - P[-2]) * scene.fps
+    vel[..., 2] = 0.0
+    vel = torch.where(vel.norm(dim=-1, keepdim=True) < static_speed, torch.zeros_like(vel), vel)
+    E = int(touching.sum(dim=-1).max()) if T else 0
+    order = torch.sort((~touching).to(torch.int8), dim=-1, stable=True).indices[:, :E]  # contacts first
+    mask = torch.gather(touching, 1, order)
+    pts = torch.gather(P, 1, order[..., None].expand(-1, -1, 3)).clone()
+    pts[..., 2] = h
+    vel = torch.gather(vel, 1, order[..., None].expand(-1, -1, 3))
+    m3 = mask[..., None]
+    return EnvContacts(points=torch.where(m3, pts, torch.zeros_like(pts)), mask=mask,
+                       sliding_velocity=torch.where(m3, vel, torch.zeros_like(vel)),
+                       support_index=torch.where(mask, order, torch.full_like(order, -1)), normal=normal)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# pose interpolation
+
+
+def interpolate_poses(poses: torch.Tensor, times: torch.Tensor, new_times: torch.Tensor) -> torch.Tensor:
+    """Sample rigid poses at ``new_times``: positions linearly, rotations by quaternion slerp.
+
+    Args:
+        poses: poses at ``times``, (T, 4, 4)
+        times: increasing sample times, (T,), seconds
+        new_times: query times, (N,), seconds; clamped to ``[times[0], times[-1]]``
+
+    Returns:
+        poses at ``new_times``, (N, 4, 4), dtype and device of ``poses``
+    """
+    T = poses.shape[0]
+    new_times = new_times.to(dtype=poses.dtype, device=poses.device)
+    times = times.to(dtype=poses.dtype, device=poses.device)
+    if T == 1:
+        return poses.expand(new_times.shape[0], 4, 4).clone()
+    t = new_times.clamp(times[0], times[-1])
+    i0 = (torch.searchsorted(times, t, right=True) - 1).clamp(0, T - 2)
+    w = ((t - times[i0]) / (times[i0 + 1] - times[i0])).clamp(0.0, 1.0)
+    p0, p1 = poses[i0, :3, 3], poses[i0 + 1, :3, 3]
+    q = _slerp(_matrix_to_quat(poses[i0, :3, :3]), _matrix_to_quat(poses[i0 + 1, :3, :3]), w)
+    out = torch.zeros(new_times.shape[0], 4, 4, dtype=poses.dtype, device=poses.device)
+    out[:, :3, :3] = _quat_to_matrix(q)
+    out[:, :3, 3] = p0 + w[:, None] * (p1 - p0)
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def _matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3); numerically robust branch selection."""
+    m = R.reshape(R.shape[:-2] + (9,)).unbind(-1)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    q_abs = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
+                        dim=-1).clamp_min(0).sqrt()
+    cand = torch.stack([
+        torch.stack([q_abs[..., 0] ** 2, m21 - m12, m02 - m20, m10 - m01], dim=-1),
+        torch.stack([m21 - m12, q_abs[..., 1] ** 2, m10 + m01, m02 + m20], dim=-1),
+        torch.stack([m02 - m20, m10 + m01, q_abs[..., 2] ** 2, m12 + m21], dim=-1),
+        torch.stack([m10 - m01, m20 + m02, m21 + m12, q_abs[..., 3] ** 2], dim=-1),
+    ], dim=-2) / (2.0 * q_abs[..., None].clamp_min(0.1))
+    best = q_abs.argmax(dim=-1)
+    q = torch.gather(cand, -2, best[..., None, None].expand(best.shape + (1, 4))).squeeze(-2)
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+def _quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) of quaternions (w, x, y, z) (normalised first)."""
+    q = q / q.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).reshape(q.shape[:-1] + (3, 3))
+
+
+def _slerp(q0: torch.Tensor, q1: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Shortest-arc spherical interpolation of unit quaternions (N, 4) with weights (N,)."""
+    dot = (q0 * q1).sum(-1)
+    q1 = torch.where(dot[:, None] < 0, -q1, q1)
+    dot = dot.abs().clamp(max=1.0)
+    theta = torch.acos(dot)
+    s = torch.sin(theta)
+    near = s < 1e-6
+    s_safe = torch.where(near, torch.ones_like(s), s)
+    a = torch.where(near, 1 - w, torch.sin((1 - w) * theta) / s_safe)
+    b = torch.where(near, w, torch.sin(w * theta) / s_safe)
+    q = a[:, None] * q0 + b[:, None] * q1
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# loading
+
+
+def load_scene(name_or_dir: str | os.PathLike) -> Scene:
+    """Load a built-in scene by name or a scene directory (``docs/scene_format.md``), validated.
+
+    A value that names an existing directory (or a ``scene.toml`` file) is read from disk; a plain name (no path
+    separator) is looked up among :func:`torchhand.scenes.list_builtin_scenes`.
+
+    Raises:
+        UnknownNameError: neither a directory nor a built-in scene name (the message lists the known names).
+        MissingFileError: a path (or a file named in ``scene.toml``) that does not exist.
+        FileFormatError: malformed TOML (file, line, column), a missing or mistyped field, an unreadable npz.
+        ShapeError: a trajectory that is not (T, 4, 4) or whose T differs from ``object_pose``.
+        InputValueError: NaN / non-rigid poses, fps <= 0, negative friction, mass <= 0 (field and file named).
+    """
+    if not isinstance(name_or_dir, (str, os.PathLike)):
+        raise InputTypeError(f"name_or_dir: expected a str or path, got {type(name_or_dir).__name__}")
+    p = Path(name_or_dir)
+    if p.is_dir() or p.is_file():
+        return _load_scene_dir(p.parent if p.is_file() else p)
+    text = os.fspath(name_or_dir)
+    from .scenes import builtin_scene, list_builtin_scenes
+
+    if isinstance(name_or_dir, str) and not any(s in text for s in ("/", "\\", os.sep)) and text not in (".", ".."):
+        if text in list_builtin_scenes():
+            return builtin_scene(text).validate()
+        raise UnknownNameError(
+            f"name_or_dir: '{text}' is neither a built-in scene nor a directory; "
+            f"built-in scenes: {', '.join(list_builtin_scenes())}"
+        )
+    raise MissingFileError(f"name_or_dir: scene directory '{text}' does not exist")
+
+
+_SCHEMA = {
+    "": {"format_version", "scene", "object", "environment", "hands"},
+    "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
+    "object": {"name", "mesh", "mass", "density", "scale", "repair"},
+    "environment": {"table", "table_height", "friction"},
+    "hands": {"side", "length"},
+}
+
+
+class _Reader:
+    """Typed access to a parsed scene.toml with errors that name the file and the field."""
+
+    def __init__(self, path: Path, doc: dict):
+        self.path, self.doc = path, doc
+
+    def table(self, key: str, required: bool = True) -> dict:
+        if key not in self.doc:
+            if required:
+                raise FileFormatError(f"{self.path}: missing table [{key}]")
+            return {}
+        t = self.doc[key]
+        if not isinstance(t, dict):
+            raise FileFormatError(f"{self.path}: '{key}' must be a table [{key}], got {type(t).__name__}")
+        self.unknown(t, key)
+        return t
+
+    def unknown(self, t: dict, section: str) -> None:
+        extra = sorted(set(t) - _SCHEMA[section])
+        if extra:
+            where = f"[{section}]" if section else "top level"
+            raise FileFormatError(f"{self.path}: unknown key(s) {', '.join(extra)} in {where}; "
+                                  f"allowed: {', '.join(sorted(_SCHEMA[section]))}")
+
+    def get(self, t: dict, section: str, key: str, kind: str, default=...):
+        field_name = f"{section}.{key}" if section else key
+        if key not in t:
+            if default is ...:
+                raise FileFormatError(f"{self.path}: missing field {field_name}")
+            return default
+        v = t[key]
+        ok = {
+            "number": isinstance(v, (int, float)) and not isinstance(v, bool),
+            "int": isinstance(v, int) and not isinstance(v, bool),
+            "str": isinstance(v, str),
+            "bool": isinstance(v, bool),
+            "vec3": isinstance(v, list) and len(v) == 3
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v),
+        }[kind]
+        if not ok:
+            expected = {"vec3": "a list of 3 numbers", "int": "an integer", "number": "a number",
+                        "str": "a string", "bool": "true or false"}[kind]
+            raise FileFormatError(f"{self.path}: field {field_name}: expected {expected}, got {v!r}")
+        if kind == "number" and not math.isfinite(float(v)):
+            raise InputValueError(f"{self.path}: field {field_name}: expected a finite number, got {v}")
+        return v
+
+    def positive(self, t, section, key, default=..., strict=True):
+        v = self.get(t, section, key, "number", default)
+        if v is None:
+            return None
+        if (v <= 0) if strict else (v < 0):
+            raise InputValueError(f"{self.path}: field {section}.{key}: expected a number "
+                                  f"{'>' if strict else '>='} 0, got {v}")
+        return float(v)
+
+
+def _load_scene_dir(directory: Path) -> Scene:
+    toml_path = directory / _SCENE_TOML
+    if not toml_path.is_file():
+        raise MissingFileError(f"name_or_dir: '{directory}' has no {_SCENE_TOML}")
+    try:
+        doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as err:
+        raise FileFormatError(f"{toml_path}: malformed TOML: {err}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise FileFormatError(f"{toml_path}: cannot read: {err}") from None
+    r = _Reader(toml_path, doc)
+    r.unknown(doc, "")
+    version = r.get(doc, "", "format_version", "int")
+    if version != FORMAT_VERSION:
+        raise FileFormatError(f"{toml_path}: format_version {version} is not supported (this reader: "
+                              f"{FORMAT_VERSION})")
+    sc, ob, env = r.table("scene"), r.table("object"), r.table("environment", required=False)
+
+    fps = r.positive(sc, "scene", "fps")
+    friction = r.positive(sc, "scene", "friction", strict=False)
+    gravity = r.get(sc, "scene", "gravity", "vec3", list(DEFAULT_GRAVITY))
+    name = r.get(sc, "scene", "name", "str", directory.resolve().name)
+    description = r.get(sc, "scene", "description", "str", "")
+    traj_name = r.get(sc, "scene", "trajectories", "str", _TRAJ_FILE)
+
+    mesh_name = r.get(ob, "object", "mesh", "str")
+    mass = r.positive(ob, "object", "mass", None)
+    density = r.positive(ob, "object", "density", None)
+    if mass is not None and density is not None:
+        raise FileFormatError(f"{toml_path}: give at most one of object.mass and object.density")
+    scale = r.positive(ob, "object", "scale", 1.0)
+    repair = r.get(ob, "object", "repair", "bool", False)
+    obj_name = r.get(ob, "object", "name", "str", Path(mesh_name).stem)
+
+    environment = Environment(
+        table=r.get(env, "environment", "table", "bool", False),
+        table_height=float(r.get(env, "environment", "table_height", "number", 0.0)),
+        friction=r.positive(env, "environment", "friction", 0.5, strict=False),
+    )
+
+    hands_doc = doc.get("hands")
+    if not isinstance(hands_doc, list) or not 1 <= len(hands_doc) <= 2:
+        raise FileFormatError(f"{toml_path}: expected 1 or 2 [[hands]] tables, got "
+                              f"{len(hands_doc) if isinstance(hands_doc, list) else repr(hands_doc)}")
+    hand_specs = []
+    for i, hd in enumerate(hands_doc):
+        if not isinstance(hd, dict):
+            raise FileFormatError(f"{toml_path}: hands[{i}] must be a table")
+        r.unknown(hd, "hands")
+        side = r.get(hd, f"hands[{i}]", "side", "str")
+        if side not in SIDES:
+            raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
+        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19)))
+    if len({s for s, _ in hand_specs}) != len(hand_specs):
+        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _ in hand_specs]}")
+
+    mesh_path = directory / mesh_name
+    if not mesh_path.is_file():
+        raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
+    traj_path = directory / traj_name
+    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _ in hand_specs])
+    T = arrays["object_pose"].shape[0]
+    for key, a in arrays.items():
+        if a.shape[0] != T:
+            raise ShapeError(f"{traj_path}: {key}: expected T = {T} frames (as object_pose), got {a.shape[0]}")
+        check_transforms(a, f"{traj_path}: {key}")
+
+    obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
+    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length) for s, length in hand_specs)
+    try:
+        scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
+                      friction=friction, environment=environment,
+                      gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
+                      description=description)
+        return scene.validate()
+    except TorchhandError as err:  # name the file for errors found by the dataclass checks
+        raise type(err)(f"{toml_path}: {err}") from None
+
+
+def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:
+    if not path.is_file():
+        raise MissingFileError(f"scene.trajectories: '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            present = set(data.files)
+            missing = [k for k in keys if k not in present]
+            if missing:
+                raise FileFormatError(
+                    f"{path}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(present))}"
+                )
+            raw = {k: data[k] for k in keys}
+    except TorchhandError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise FileFormatError(f"{path}: cannot read npz: {type(err).__name__}: {err}") from None
+    out = {}
+    for k, a in raw.items():
+        if a.dtype.kind not in "fiu":
+            raise FileFormatError(f"{path}: {k}: expected a numeric array, got dtype {a.dtype}")
+        if a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
+            raise ShapeError(f"{path}: {k}: expected shape (T, 4, 4), got {a.shape}")
+        out[k] = torch.tensor(a, dtype=torch.float64)
+    return out
