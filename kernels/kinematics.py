@@ -39,6 +39,9 @@ class Chain(NamedTuple):
     joint_anchor: point on the axis in the link frame, (D, 3), metres
     support:      support[l, j] is True when joint j moves link l, (L, D), bool
     levels:       link indices grouped by depth in the tree, tuple of (n_k,) long tensors, root level first
+    slot_links:   for k = 0, 1, ...: the links that have a k-th joint, tuple of (m_k,) long tensors
+    slot_joints:  the matching k-th joints, tuple of (m_k,) long tensors
+    support_joints: the joints that move each link, (L, S), long, padded with -1
     """
 
     link_parent: torch.Tensor
@@ -50,6 +53,9 @@ class Chain(NamedTuple):
     joint_anchor: torch.Tensor
     support: torch.Tensor
     levels: tuple
+    slot_links: tuple
+    slot_joints: tuple
+    support_joints: torch.Tensor
 
 
 # Internally every quantity is laid out batch-LAST: rotations (..., 3, 3, B), vectors (..., 3, B). Products of
@@ -71,23 +77,23 @@ def _mv(R: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 def _joint_transforms(chain: Chain, qT: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Rotation (D, 3, 3, B) and translation (D, 3, B) of every joint for batch-last values ``qT (D, B)``."""
     axis = chain.joint_axis.to(qT)  # (D, 3)
-    anchor = chain.joint_anchor.to(qT)
     D = axis.shape[0]
-    hinge = (chain.joint_type == JOINT_HINGE).view(D, 1, 1)
-    # Rodrigues: R = cos I + (1 - cos) a a^T + sin [a]x.
-    s = torch.sin(qT).unsqueeze(1).unsqueeze(1)  # (D, 1, 1, B)
-    c = torch.cos(qT).unsqueeze(1).unsqueeze(1)
+    hinge = (chain.joint_type == JOINT_HINGE).to(qT.dtype).view(D, 1, 1, 1)
+    # Rodrigues: R = I + sin [a]x + (1 - cos) (a a^T - I); the two constant matrices are zeroed for slide joints,
+    # whose rotation is then exactly I.
     x, y, z = axis.unbind(-1)
     zero = torch.zeros_like(x)
-    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(D, 3, 3, 1)
-    aaT = (axis.unsqueeze(-1) * axis.unsqueeze(-2)).unsqueeze(-1)  # (D, 3, 3, 1)
-    eye = torch.eye(3, dtype=qT.dtype, device=qT.device).reshape(1, 3, 3, 1)
-    R_hinge = c * eye + (1 - c) * aaT + s * K
-    R = torch.where(hinge.unsqueeze(-1), R_hinge, eye)
-    a = anchor.unsqueeze(-1)  # (D, 3, 1)
-    t_hinge = a - _mv(R_hinge, a)
-    t_slide = axis.unsqueeze(-1) * qT.unsqueeze(1)
-    t = torch.where(hinge, t_hinge, t_slide)
+    eye = torch.eye(3, dtype=qT.dtype, device=qT.device)
+    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(D, 3, 3, 1) * hinge
+    K2 = (axis.unsqueeze(-1) * axis.unsqueeze(-2) - eye).unsqueeze(-1) * hinge
+    s = torch.sin(qT).view(D, 1, 1, -1)
+    omc = (1 - torch.cos(qT)).view(D, 1, 1, -1)
+    R = s * K + omc * K2 + eye.view(1, 3, 3, 1)
+    # Hinge about an axis through ``anchor``: t = anchor - R anchor; slide: t = axis * q (R = I there, so the first
+    # term vanishes and one formula serves both).
+    a = chain.joint_anchor.to(qT).unsqueeze(-1)  # (D, 3, 1)
+    slide = (1 - hinge).view(D, 1, 1)
+    t = a - _mv(R, a) + slide * axis.unsqueeze(-1) * qT.unsqueeze(1)
     return R, t
 
 
@@ -96,29 +102,24 @@ def _kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor, need_joints: 
     anchor (D, 3, B)."""
     B, D = q.shape
     L = chain.link_parent.shape[0]
-    dtype, device = q.dtype, q.device
     Rj, tj = _joint_transforms(chain, q.t())
-    # An identity joint at index D absorbs the padding of link_joints.
-    Rj = torch.cat([Rj, torch.eye(3, dtype=dtype, device=device).reshape(1, 3, 3, 1).expand(1, 3, 3, B)], dim=0)
-    tj = torch.cat([tj, q.new_zeros(1, 3, B)], dim=0)
-
     offset = chain.link_offset.to(q)
-    R_loc = offset[:, :3, :3].unsqueeze(-1)  # (L, 3, 3, 1): broadcasts until a joint moves it
-    t_loc = offset[:, :3, 3].unsqueeze(-1)
+    # Local transform of every link: its fixed offset followed by its joints, slot by slot.
+    R_loc = offset[:, :3, :3].unsqueeze(-1).expand(L, 3, 3, B).contiguous()
+    t_loc = offset[:, :3, 3].unsqueeze(-1).expand(L, 3, B).contiguous()
     if need_joints:
-        axis_p = q.new_zeros(D + 1, 3, B)  # joint axis / anchor in the link's parent frame
-        anchor_p = q.new_zeros(D + 1, 3, B)
-        axis = torch.cat([chain.joint_axis.to(q), q.new_zeros(1, 3)]).unsqueeze(-1)
-        anchor = torch.cat([chain.joint_anchor.to(q), q.new_zeros(1, 3)]).unsqueeze(-1)
-    for k in range(chain.link_joints.shape[1]):
-        idx = chain.link_joints[:, k]  # (L,)
+        # Each joint's axis and anchor in its link's parent frame (the frame just before the joint moves).
+        axis_p = q.new_empty(D, 3, B)
+        anchor_p = q.new_empty(D, 3, B)
+        axis = chain.joint_axis.to(q).unsqueeze(-1)
+        anchor = chain.joint_anchor.to(q).unsqueeze(-1)
+    for links, joints in zip(chain.slot_links, chain.slot_joints):
+        Rl, tl = R_loc[links], t_loc[links]
         if need_joints:
-            Rb = R_loc.expand(L, 3, 3, B)
-            axis_p = axis_p.index_copy(0, idx, _mv(Rb, axis[idx]))
-            anchor_p = anchor_p.index_copy(0, idx, _mv(Rb, anchor[idx]) + t_loc)
-        Rk, tk = Rj[idx], tj[idx]
-        t_loc = t_loc + _mv(R_loc, tk)
-        R_loc = _mm(R_loc, Rk)
+            axis_p.index_copy_(0, joints, _mv(Rl, axis[joints]))
+            anchor_p.index_copy_(0, joints, _mv(Rl, anchor[joints]) + tl)
+        R_loc.index_copy_(0, links, _mm(Rl, Rj[joints]))
+        t_loc.index_copy_(0, links, tl + _mv(Rl, tj[joints]))
 
     R_root = root[:, :3, :3].permute(1, 2, 0)  # (3, 3, B)
     t_root = root[:, :3, 3].t()  # (3, B)
@@ -131,18 +132,18 @@ def _kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor, need_joints: 
         else:
             parent = chain.link_parent[level]
             Rp, tp = R_world[parent], t_world[parent]
-        Rl = R_loc[level] if R_loc.shape[-1] == B else R_loc[level].expand(-1, 3, 3, B)
-        R_world = R_world.index_copy(0, level, _mm(Rp, Rl))
-        t_world = t_world.index_copy(0, level, tp + _mv(Rp, t_loc[level].expand(-1, 3, B)))
+        R_world.index_copy_(0, level, _mm(Rp, R_loc[level]))
+        t_world.index_copy_(0, level, tp + _mv(Rp, t_loc[level]))
     if not need_joints:
         return R_world, t_world, None, None
     parent_of_joint = chain.link_parent[chain.joint_link]  # (D,)
-    is_root = (parent_of_joint < 0).view(D, 1, 1)
+    is_root = (parent_of_joint < 0).to(q.dtype).view(D, 1, 1)
     pj = parent_of_joint.clamp(min=0)
-    Rp = torch.where(is_root.unsqueeze(-1), R_root.unsqueeze(0), R_world[pj])
-    tp = torch.where(is_root, t_root.unsqueeze(0), t_world[pj])
-    axis_w = _mv(Rp, axis_p[:D])
-    anchor_w = _mv(Rp, anchor_p[:D]) + tp
+    # Joints on the root link hang off the root pose, the others off their link's parent.
+    Rp = R_world[pj] * (1 - is_root.unsqueeze(-1)) + R_root.unsqueeze(0) * is_root.unsqueeze(-1)
+    tp = t_world[pj] * (1 - is_root) + t_root.unsqueeze(0) * is_root
+    axis_w = _mv(Rp, axis_p)
+    anchor_w = _mv(Rp, anchor_p) + tp
     return R_world, t_world, axis_w, anchor_w
 
 
@@ -192,19 +193,26 @@ def fk_and_point_jacobian(
               jacobian (B, P, 3, D) metres per radian (hinge) / per metre (slide))
     """
     R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)  # batch-last
-    B = q.shape[0]
+    B, D = q.shape
     p = points_local.to(q)
     p = p.unsqueeze(-1) if p.dim() == 2 else p.permute(1, 2, 0)  # (P, 3, 1 | B)
     x = _mv(R[link_index], p) + t[link_index]  # (P, 3, B)
-    r = x.unsqueeze(1) - anchor.unsqueeze(0)  # (P, D, 3, B)
-    a = axis.unsqueeze(0)  # (1, D, 3, B)
+    # Only the joints that move a point's link contribute: gather those (S per point), fill the rest with zeros.
+    sj = chain.support_joints[link_index]  # (P, S), -1 = padding
+    valid = (sj >= 0).to(q.dtype).view(*sj.shape, 1, 1)
+    sjc = sj.clamp(min=0)
+    a = axis[sjc] * valid  # (P, S, 3, B)
+    r = x.unsqueeze(1) - anchor[sjc]
     cross = torch.stack([a[:, :, 1] * r[:, :, 2] - a[:, :, 2] * r[:, :, 1],
                          a[:, :, 2] * r[:, :, 0] - a[:, :, 0] * r[:, :, 2],
                          a[:, :, 0] * r[:, :, 1] - a[:, :, 1] * r[:, :, 0]], dim=2)
-    hinge = (chain.joint_type == JOINT_HINGE).view(1, -1, 1, 1)
-    lin = torch.where(hinge, cross, a)
-    lin = lin * chain.support[link_index].to(q.dtype).view(lin.shape[0], -1, 1, 1)  # (P, D, 3, B)
-    return _homogeneous(R, t), x.permute(2, 0, 1), lin.permute(3, 0, 2, 1)
+    hinge = (chain.joint_type[sjc] == JOINT_HINGE).to(q.dtype).view(*sj.shape, 1, 1)
+    cols = cross * hinge + a * (1 - hinge)  # (P, S, 3, B)
+    P, S = sj.shape
+    J = q.new_zeros(B, P, 3, D)
+    index = sjc.view(1, P, 1, S).expand(B, P, 3, S)
+    J = J.scatter_add(3, index, cols.permute(3, 0, 2, 1))
+    return _homogeneous(R, t), x.permute(2, 0, 1), J
 
 
 def point_jacobian(

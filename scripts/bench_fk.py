@@ -77,9 +77,7 @@ def bench_fk(device: str = "cpu", dtype: torch.dtype = torch.float32, batch_size
         q = hand.random_q(B, gen).to(device)
 
         def ours():
-            T = hand.forward_kinematics(q)
-            x, J = hand.points_and_jacobian(q, links, tips)
-            return T, J
+            return hand.kinematics(q, links, tips)  # link poses, tip positions, tip Jacobians
 
         t = time_fn(ours, device, repeats=repeats, min_time=0.05)
         rows.append({"name": "torchhand fk+jac", "device": device, "dtype": str(dtype).replace("torch.", ""),

@@ -10,6 +10,9 @@ Scenes come from :func:`load_scene` (a built-in name, see :mod:`torchhand.scenes
 ``docs/scene_format.md``), from :func:`torchhand.mocap.import_mocap_scene`, or are built directly. Building a
 :class:`Scene` runs the cheap checks (types, shapes, ranges); :meth:`Scene.validate` adds the value checks that
 force a host sync (finite, rigid transforms) and is run by every loader.
+
+Directory I/O is in :mod:`torchhand.scene_io` and object-table contacts in :mod:`torchhand.contacts_env`; their public
+names (:class:`EnvContacts`, :func:`environment_contacts`) are re-exported here.
 """
 
 from __future__ import annotations
@@ -17,20 +20,16 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import shutil
-import tempfile
-import tomllib
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .contacts_env import EnvContacts, environment_contacts
 from .conventions import check_transforms
-from .errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
-                     TorchhandError, UnknownNameError)
-from .objects import RigidObject, load_object
+from .errors import InputTypeError, InputValueError, MissingFileError, ShapeError, UnknownNameError
+from .objects import RigidObject
 
 __all__ = [
     "SIDES",
@@ -52,10 +51,6 @@ FORMAT_VERSION = 1
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 """Gravity, (3,), world, m/s^2."""
-
-_SCENE_TOML = "scene.toml"
-_MESH_FILE = "object.obj"
-_TRAJ_FILE = "trajectories.npz"
 
 
 def _default_gravity() -> torch.Tensor:
@@ -285,142 +280,9 @@ class Scene:
             InputValueError: files already there without ``overwrite``, ``directory`` is a file, or the operating
                 system refused a write (the message carries its reason).
         """
-        target = Path(directory)
-        if target.exists() and not target.is_dir():
-            raise InputValueError(f"directory: '{target}' exists and is not a directory")
-        names = (_MESH_FILE, _TRAJ_FILE, _SCENE_TOML)
-        if not overwrite:
-            clash = [n for n in names if (target / n).exists()]
-            if clash:
-                raise InputValueError(
-                    f"directory: '{target}' already holds {', '.join(clash)}; pass overwrite=True "
-                    "(CLI: --overwrite) to replace them"
-                )
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
-        except OSError as err:
-            raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
-        try:
-            self._write_files(tmp)
-            target.mkdir(exist_ok=True)
-            for n in names:  # scene.toml last: a reader never sees it before the files it names
-                os.replace(tmp / n, target / n)
-        except OSError as err:
-            raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-        return target
+        from .scene_io import export_scene_dir
 
-    def _write_files(self, out: Path) -> None:
-        import tomli_w
-        import trimesh
-
-        mesh = self.object.mesh
-        text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_color=False,
-                                               include_texture=False, digits=12)
-        (out / _MESH_FILE).write_text(text, encoding="utf-8")
-        arrays = {"object_pose": self.object_pose.detach().cpu().to(torch.float64).numpy()}
-        for h in self.hands:
-            arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
-        with open(out / _TRAJ_FILE, "wb") as f:
-            np.savez(f, **arrays)
-        doc = {
-            "format_version": FORMAT_VERSION,
-            "scene": {
-                "name": self.name,
-                "description": self.description,
-                "fps": float(self.fps),
-                "friction": float(self.friction),
-                "gravity": [float(v) for v in self.gravity.tolist()],
-                "trajectories": _TRAJ_FILE,
-            },
-            "object": {"name": self.object.name, "mesh": _MESH_FILE, "mass": float(self.object.mass),
-                       "scale": 1.0},
-            "environment": {"table": bool(self.environment.table),
-                            "table_height": float(self.environment.table_height),
-                            "friction": float(self.environment.friction)},
-        }
-        text = tomli_w.dumps(doc)
-        for h in sorted(self.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
-            text += "\n[[hands]]\n" + tomli_w.dumps({"side": h.side, "length": float(h.length)})
-        (out / _SCENE_TOML).write_text(text, encoding="utf-8")
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# environment contacts
-
-
-@dataclass(frozen=True, eq=False)
-class EnvContacts:
-    """Object-table support contacts per frame, padded to ``E`` with ``mask``.
-
-    Fields
-        points: contact points on the table plane below the supporting object points, (T, E, 3), world, metres
-        mask: which entries are real contacts, (T, E), bool
-        sliding_velocity: tangential velocity of the object's material point at each contact, (T, E, 3), world,
-            m/s; exactly zero for a static contact (speed below ``static_speed``) and for padding
-        support_index: index into the object's convex-hull vertices, (T, E), int64, -1 for padding
-        normal: contact normal, (3,), world, pointing into the object (+z for a table)
-    """
-
-    points: torch.Tensor
-    mask: torch.Tensor
-    sliding_velocity: torch.Tensor
-    support_index: torch.Tensor
-    normal: torch.Tensor
-
-    @property
-    def count(self) -> torch.Tensor:
-        """Number of contacts per frame, (T,), int64."""
-        return self.mask.sum(dim=-1)
-
-
-def environment_contacts(scene: Scene, tol: float = 0.003, static_speed: float = 1e-3) -> EnvContacts:
-    """Where the object rests on the table in each frame.
-
-    The supporting points are the vertices of the object mesh's convex hull (object frame) whose world height is
-    at most ``tol`` above the table plane (or below it). Velocities are central finite differences of their
-    world positions (one-sided at the ends), with the normal (z) component removed.
-
-    Args:
-        scene: the scene; without a table every frame has no contact (E = 0).
-        tol: height above the table plane that still counts as contact, metres.
-        static_speed: tangential speeds below this are reported as exactly zero (static), m/s.
-
-    Returns:
-        the padded contacts, E = the largest contact count over the frames.
-    """
-    tol = _check_number(tol, "tol", low=0.0)
-    static_speed = _check_number(static_speed, "static_speed", low=0.0)
-    pose = scene.object_pose
-    T, dtype, device = scene.T, pose.dtype, pose.device
-    normal = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=device)
-    if not scene.environment.table:
-        return EnvContacts(pose.new_zeros(T, 0, 3), torch.zeros(T, 0, dtype=torch.bool, device=device),
-                           pose.new_zeros(T, 0, 3), torch.zeros(T, 0, dtype=torch.long, device=device), normal)
-    hull = np.asarray(scene.object.mesh.convex_hull.vertices, dtype=np.float64)
-    V = torch.as_tensor(hull, dtype=dtype, device=device)
-    P = torch.einsum("tij,nj->tni", pose[:, :3, :3], V) + pose[:, None, :3, 3]  # (T, N, 3)
-    h = scene.environment.table_height
-    touching = P[..., 2] - h <= tol
-    vel = torch.zeros_like(P)
-    if T > 1:
-        vel[1:-1] = (P[2:] - P[:-2]) * (0.5 * scene.fps)
-        vel[0] = (P[1] - P[0]) * scene.fps
-        vel[-1] = (P[-1] - P[-2]) * scene.fps
-    vel[..., 2] = 0.0
-    vel = torch.where(vel.norm(dim=-1, keepdim=True) < static_speed, torch.zeros_like(vel), vel)
-    E = int(touching.sum(dim=-1).max()) if T else 0
-    order = torch.sort((~touching).to(torch.int8), dim=-1, stable=True).indices[:, :E]  # contacts first
-    mask = torch.gather(touching, 1, order)
-    pts = torch.gather(P, 1, order[..., None].expand(-1, -1, 3)).clone()
-    pts[..., 2] = h
-    vel = torch.gather(vel, 1, order[..., None].expand(-1, -1, 3))
-    m3 = mask[..., None]
-    return EnvContacts(points=torch.where(m3, pts, torch.zeros_like(pts)), mask=mask,
-                       sliding_velocity=torch.where(m3, vel, torch.zeros_like(vel)),
-                       support_index=torch.where(mask, order, torch.full_like(order, -1)), normal=normal)
+        return export_scene_dir(self, directory, overwrite=overwrite)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -519,7 +381,9 @@ def load_scene(name_or_dir: str | os.PathLike) -> Scene:
         raise InputTypeError(f"name_or_dir: expected a str or path, got {type(name_or_dir).__name__}")
     p = Path(name_or_dir)
     if p.is_dir() or p.is_file():
-        return _load_scene_dir(p.parent if p.is_file() else p)
+        from .scene_io import load_scene_dir
+
+        return load_scene_dir(p.parent if p.is_file() else p)
     text = os.fspath(name_or_dir)
     from .scenes import builtin_scene, list_builtin_scenes
 
@@ -531,174 +395,3 @@ def load_scene(name_or_dir: str | os.PathLike) -> Scene:
             f"built-in scenes: {', '.join(list_builtin_scenes())}"
         )
     raise MissingFileError(f"name_or_dir: scene directory '{text}' does not exist")
-
-
-_SCHEMA = {
-    "": {"format_version", "scene", "object", "environment", "hands"},
-    "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
-    "object": {"name", "mesh", "mass", "density", "scale", "repair"},
-    "environment": {"table", "table_height", "friction"},
-    "hands": {"side", "length"},
-}
-
-
-class _Reader:
-    """Typed access to a parsed scene.toml with errors that name the file and the field."""
-
-    def __init__(self, path: Path, doc: dict):
-        self.path, self.doc = path, doc
-
-    def table(self, key: str, required: bool = True) -> dict:
-        if key not in self.doc:
-            if required:
-                raise FileFormatError(f"{self.path}: missing table [{key}]")
-            return {}
-        t = self.doc[key]
-        if not isinstance(t, dict):
-            raise FileFormatError(f"{self.path}: '{key}' must be a table [{key}], got {type(t).__name__}")
-        self.unknown(t, key)
-        return t
-
-    def unknown(self, t: dict, section: str) -> None:
-        extra = sorted(set(t) - _SCHEMA[section])
-        if extra:
-            where = f"[{section}]" if section else "top level"
-            raise FileFormatError(f"{self.path}: unknown key(s) {', '.join(extra)} in {where}; "
-                                  f"allowed: {', '.join(sorted(_SCHEMA[section]))}")
-
-    def get(self, t: dict, section: str, key: str, kind: str, default=...):
-        field_name = f"{section}.{key}" if section else key
-        if key not in t:
-            if default is ...:
-                raise FileFormatError(f"{self.path}: missing field {field_name}")
-            return default
-        v = t[key]
-        ok = {
-            "number": isinstance(v, (int, float)) and not isinstance(v, bool),
-            "int": isinstance(v, int) and not isinstance(v, bool),
-            "str": isinstance(v, str),
-            "bool": isinstance(v, bool),
-            "vec3": isinstance(v, list) and len(v) == 3
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v),
-        }[kind]
-        if not ok:
-            expected = {"vec3": "a list of 3 numbers", "int": "an integer", "number": "a number",
-                        "str": "a string", "bool": "true or false"}[kind]
-            raise FileFormatError(f"{self.path}: field {field_name}: expected {expected}, got {v!r}")
-        if kind == "number" and not math.isfinite(float(v)):
-            raise InputValueError(f"{self.path}: field {field_name}: expected a finite number, got {v}")
-        return v
-
-    def positive(self, t, section, key, default=..., strict=True):
-        v = self.get(t, section, key, "number", default)
-        if v is None:
-            return None
-        if (v <= 0) if strict else (v < 0):
-            raise InputValueError(f"{self.path}: field {section}.{key}: expected a number "
-                                  f"{'>' if strict else '>='} 0, got {v}")
-        return float(v)
-
-
-def _load_scene_dir(directory: Path) -> Scene:
-    toml_path = directory / _SCENE_TOML
-    if not toml_path.is_file():
-        raise MissingFileError(f"name_or_dir: '{directory}' has no {_SCENE_TOML}")
-    try:
-        doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as err:
-        raise FileFormatError(f"{toml_path}: malformed TOML: {err}") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise FileFormatError(f"{toml_path}: cannot read: {err}") from None
-    r = _Reader(toml_path, doc)
-    r.unknown(doc, "")
-    version = r.get(doc, "", "format_version", "int")
-    if version != FORMAT_VERSION:
-        raise FileFormatError(f"{toml_path}: format_version {version} is not supported (this reader: "
-                              f"{FORMAT_VERSION})")
-    sc, ob, env = r.table("scene"), r.table("object"), r.table("environment", required=False)
-
-    fps = r.positive(sc, "scene", "fps")
-    friction = r.positive(sc, "scene", "friction", strict=False)
-    gravity = r.get(sc, "scene", "gravity", "vec3", list(DEFAULT_GRAVITY))
-    name = r.get(sc, "scene", "name", "str", directory.resolve().name)
-    description = r.get(sc, "scene", "description", "str", "")
-    traj_name = r.get(sc, "scene", "trajectories", "str", _TRAJ_FILE)
-
-    mesh_name = r.get(ob, "object", "mesh", "str")
-    mass = r.positive(ob, "object", "mass", None)
-    density = r.positive(ob, "object", "density", None)
-    if mass is not None and density is not None:
-        raise FileFormatError(f"{toml_path}: give at most one of object.mass and object.density")
-    scale = r.positive(ob, "object", "scale", 1.0)
-    repair = r.get(ob, "object", "repair", "bool", False)
-    obj_name = r.get(ob, "object", "name", "str", Path(mesh_name).stem)
-
-    environment = Environment(
-        table=r.get(env, "environment", "table", "bool", False),
-        table_height=float(r.get(env, "environment", "table_height", "number", 0.0)),
-        friction=r.positive(env, "environment", "friction", 0.5, strict=False),
-    )
-
-    hands_doc = doc.get("hands")
-    if not isinstance(hands_doc, list) or not 1 <= len(hands_doc) <= 2:
-        raise FileFormatError(f"{toml_path}: expected 1 or 2 [[hands]] tables, got "
-                              f"{len(hands_doc) if isinstance(hands_doc, list) else repr(hands_doc)}")
-    hand_specs = []
-    for i, hd in enumerate(hands_doc):
-        if not isinstance(hd, dict):
-            raise FileFormatError(f"{toml_path}: hands[{i}] must be a table")
-        r.unknown(hd, "hands")
-        side = r.get(hd, f"hands[{i}]", "side", "str")
-        if side not in SIDES:
-            raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
-        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19)))
-    if len({s for s, _ in hand_specs}) != len(hand_specs):
-        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _ in hand_specs]}")
-
-    mesh_path = directory / mesh_name
-    if not mesh_path.is_file():
-        raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
-    traj_path = directory / traj_name
-    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _ in hand_specs])
-    T = arrays["object_pose"].shape[0]
-    for key, a in arrays.items():
-        if a.shape[0] != T:
-            raise ShapeError(f"{traj_path}: {key}: expected T = {T} frames (as object_pose), got {a.shape[0]}")
-        check_transforms(a, f"{traj_path}: {key}")
-
-    obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
-    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length) for s, length in hand_specs)
-    try:
-        scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
-                      friction=friction, environment=environment,
-                      gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
-                      description=description)
-        return scene.validate()
-    except TorchhandError as err:  # name the file for errors found by the dataclass checks
-        raise type(err)(f"{toml_path}: {err}") from None
-
-
-def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:
-    if not path.is_file():
-        raise MissingFileError(f"scene.trajectories: '{path}' does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            present = set(data.files)
-            missing = [k for k in keys if k not in present]
-            if missing:
-                raise FileFormatError(
-                    f"{path}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(present))}"
-                )
-            raw = {k: data[k] for k in keys}
-    except TorchhandError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise FileFormatError(f"{path}: cannot read npz: {type(err).__name__}: {err}") from None
-    out = {}
-    for k, a in raw.items():
-        if a.dtype.kind not in "fiu":
-            raise FileFormatError(f"{path}: {k}: expected a numeric array, got dtype {a.dtype}")
-        if a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
-            raise ShapeError(f"{path}: {k}: expected shape (T, 4, 4), got {a.shape}")
-        out[k] = torch.tensor(a, dtype=torch.float64)
-    return out

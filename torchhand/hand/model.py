@@ -245,6 +245,11 @@ class HandModel:
     def points_and_jacobian(self, q, link_index, points_local, root=None, *, check: bool = False):
         """World positions (B, P, 3) of link-fixed points and their Jacobian (B, P, 3, D) in one pass."""
         q, root = self._inputs(q, root, check)
+        link_index, points_local = self._point_args(q, link_index, points_local)
+        _, x, J = _kin.fk_and_point_jacobian(self._chain(q), q, root, link_index, points_local)
+        return x, J
+
+    def _point_args(self, q, link_index, points_local):
         link_index = torch.as_tensor(link_index, dtype=torch.long, device=q.device)
         if link_index.dim() != 1:
             raise ShapeError(f"link_index: expected shape (P,), got {tuple(link_index.shape)}")
@@ -253,10 +258,17 @@ class HandModel:
             check_tensor(points_local, "points_local", (P, 3))
         else:
             check_tensor(points_local, "points_local", (q.shape[0], P, 3))
-        if P and (int(link_index.min()) < 0 or int(link_index.max()) >= self.num_links):
+        # A range check costs a host sync on GPUs; there an out-of-range index fails inside torch instead.
+        if P and q.device.type == "cpu" and (int(link_index.min()) < 0 or int(link_index.max()) >= self.num_links):
             raise InputValueError(f"link_index: values must be in [0, {self.num_links}), got "
                                   f"[{int(link_index.min())}, {int(link_index.max())}]")
-        return _kin.point_jacobian(self._chain(q), q, root, link_index, points_local.to(q.dtype))
+        return link_index, points_local.to(q.dtype)
+
+    def kinematics(self, q, link_index, points_local, root=None, *, check: bool = False):
+        """Link poses (B, L, 4, 4), world points (B, P, 3) and their Jacobian (B, P, 3, D) in one pass."""
+        q, root = self._inputs(q, root, check)
+        link_index, points_local = self._point_args(q, link_index, points_local)
+        return _kin.fk_and_point_jacobian(self._chain(q), q, root, link_index, points_local)
 
     def clamp_to_limits(self, q: torch.Tensor) -> torch.Tensor:
         """q clamped into ``joint_limits``, (B, D)."""
@@ -361,6 +373,11 @@ def build_hand_model(
         joint_anchor=t(np.array([j.anchor for j in joints]).reshape(D, 3)),
         support=t(support, torch.bool),
         levels=tuple(t(np.nonzero(depth == k)[0], torch.long) for k in range(int(depth.max()) + 1)),
+        slot_links=tuple(t([l for l in range(L) if len(per_link[l]) > k], torch.long) for k in range(J)
+                         if any(len(p) > k for p in per_link)),
+        slot_joints=tuple(t([per_link[l][k] for l in range(L) if len(per_link[l]) > k], torch.long)
+                          for k in range(J) if any(len(p) > k for p in per_link)),
+        support_joints=t(_padded([np.nonzero(support[l])[0] for l in range(L)]), torch.long),
     )
     limits = np.array([j.limits for j in joints], dtype=np.float64).reshape(D, 2)
     if (limits[:, 0] > limits[:, 1]).any():
@@ -447,6 +464,15 @@ def build_hand_model(
         flexion_joints=t(flex, torch.long),
         collision_pairs=t(np.array(pairs, dtype=np.int64).reshape(-1, 2), torch.long),
     )
+
+
+def _padded(rows: list[np.ndarray]) -> np.ndarray:
+    """Stack index rows of different lengths into (len(rows), max(1, longest)), padded with -1."""
+    width = max([len(r) for r in rows] + [1])
+    out = np.full((len(rows), width), -1, dtype=np.int64)
+    for i, r in enumerate(rows):
+        out[i, : len(r)] = r
+    return out
 
 
 def _palm_level(link: int, finger: int, finger_links: np.ndarray) -> bool:

@@ -1,0 +1,149 @@
+"""MJCF export: :func:`hand_to_mjcf` and :func:`save_mjcf` (facade and full description: :mod:`torchhand.hand.mjcf`).
+
+Conventions: metres, radians, quaternions wxyz, column-vector 4x4 transforms (see :mod:`torchhand.conventions`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputValueError, MissingFileError
+from ._mjcf_common import _ROOT_WRAPPER, _mat_to_quat
+from .model import GEOM_TYPES, HandModel
+
+__all__ = ["hand_to_mjcf", "save_mjcf"]
+
+
+def _fmt(a) -> str:
+    return " ".join(repr(float(x)) for x in np.asarray(a, dtype=np.float64).reshape(-1))
+
+
+def _set_pose(e: ET.Element, T: np.ndarray) -> None:
+    if np.any(T[:3, 3] != 0):
+        e.set("pos", _fmt(T[:3, 3]))
+    if np.any(T[:3, :3] != np.eye(3)):
+        e.set("quat", _fmt(_mat_to_quat(T[:3, :3])))
+
+
+def hand_to_mjcf(hand: HandModel) -> str:
+    """The hand as a self-contained MJCF string that MuJoCo loads (see :mod:`torchhand.hand.mjcf`).
+
+    hand: any HandModel (any device or dtype; written from float64 CPU copies)
+    returns: XML text; MuJoCo's qpos = (root position (3), root quaternion wxyz (4), q (D)) gives body poses equal to
+        ``hand.forward_kinematics(q, root)``; nq = 7 + D
+    raises: InputValueError for a mesh MuJoCo cannot compile (fewer than 4 vertices or flat)
+    """
+    h = hand.to(device="cpu", dtype=torch.float64)
+    ch, gm = h.chain, h.geoms
+    L, D = h.num_links, h.num_joints
+    root = ET.Element("mujoco", model=h.name)
+    ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false")
+
+    custom = ET.SubElement(root, "custom")
+    ET.SubElement(custom, "text", name="torchhand_side", data=h.side)
+    ET.SubElement(custom, "numeric", name="torchhand_length", data=_fmt([h.length]))
+    if D:
+        ET.SubElement(custom, "numeric", name="torchhand_q_rest", data=_fmt(h.q_rest.numpy()))
+    for f, fname in enumerate(h.finger_names):
+        links = " ".join(h.link_names[int(i)] for i in h.finger_links[f] if int(i) >= 0)
+        flex = " ".join(h.joint_names[int(i)] for i in h.flexion_joints[f] if int(i) >= 0)
+        ET.SubElement(custom, "text", name=f"torchhand_finger{f}", data=f"{fname}|{links}|{flex}")
+        ET.SubElement(custom, "numeric", name=f"torchhand_finger{f}_frame",
+                      data=_fmt(np.concatenate([h.nail_normal[f].numpy(), h.fingertip[f].numpy()])))
+
+    asset = ET.SubElement(root, "asset")
+    mesh_names, by_hash = {}, {}
+    for g in range(gm.link.shape[0]):
+        k = int(gm.mesh_index[g])
+        if k < 0:
+            continue
+        V, F = gm.meshes[k][0].numpy(), gm.meshes[k][1].numpy().astype(np.int64)
+        key = hashlib.sha1(V.tobytes() + F.tobytes()).hexdigest()
+        if key not in by_hash:
+            if len(V) < 4 or np.linalg.matrix_rank(V - V.mean(0), tol=1e-9) < 3:
+                raise InputValueError(f"hand {h.name!r}: mesh geom {g} on link {h.link_names[int(gm.link[g])]!r} "
+                                      "is flat or has fewer than 4 vertices; MuJoCo cannot compile it")
+            by_hash[key] = f"mesh{len(by_hash)}"
+            ET.SubElement(asset, "mesh", name=by_hash[key], vertex=_fmt(V), face=" ".join(map(str, F.reshape(-1))))
+        mesh_names[g] = by_hash[key]
+    if not by_hash:
+        root.remove(asset)
+
+    world = ET.SubElement(root, "worldbody")
+    children = [[] for _ in range(L)]
+    for l in range(1, L):
+        children[int(ch.link_parent[l])].append(l)
+    offsets = ch.link_offset.numpy()
+    geoms_of = [[] for _ in range(L)]
+    for g in range(gm.link.shape[0]):
+        geoms_of[int(gm.link[g])].append(g)
+
+    def body(parent_elem: ET.Element, l: int, with_free: bool) -> None:
+        b = ET.SubElement(parent_elem, "body", name=h.link_names[l])
+        if l:
+            _set_pose(b, offsets[l])
+        ET.SubElement(b, "inertial", pos="0 0 0", mass="0.001", diaginertia="1e-07 1e-07 1e-07")
+        if with_free:
+            ET.SubElement(b, "freejoint", name="root")
+        for d in ch.link_joints[l].tolist():
+            if d >= D:
+                continue
+            hinge = int(ch.joint_type[d]) == 0
+            j = ET.SubElement(b, "joint", name=h.joint_names[d], type="hinge" if hinge else "slide")
+            if hinge and np.any(ch.joint_anchor[d].numpy() != 0):
+                j.set("pos", _fmt(ch.joint_anchor[d]))
+            j.set("axis", _fmt(ch.joint_axis[d]))
+            j.set("limited", "true")
+            j.set("range", _fmt(h.joint_limits[d]))
+        for n, g in enumerate(geoms_of[l]):
+            gtype = GEOM_TYPES[int(gm.type[g])]
+            e = ET.SubElement(b, "geom", name=f"{h.link_names[l]}_geom{n}", type=gtype)
+            if gtype == "mesh":
+                e.set("mesh", mesh_names[g])
+            else:
+                e.set("size", _fmt(gm.size[g][: {"sphere": 1, "capsule": 2, "cylinder": 2, "box": 3}[gtype]]))
+            _set_pose(e, gm.pose[g].numpy())
+        for c in children[l]:
+            body(b, c, False)
+
+    root_has_joints = bool((ch.link_joints[0] < D).any()) if D else False
+    if root_has_joints:
+        wrapper = ET.SubElement(world, "body", name=_ROOT_WRAPPER)
+        ET.SubElement(wrapper, "inertial", pos="0 0 0", mass="0.001", diaginertia="1e-07 1e-07 1e-07")
+        ET.SubElement(wrapper, "freejoint", name="root")
+        body(wrapper, 0, False)
+    else:
+        body(world, 0, True)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode") + "\n"
+
+
+def save_mjcf(hand: HandModel, path) -> Path:
+    """Write :func:`hand_to_mjcf` to ``path`` atomically (a temporary file in the same folder, then os.replace).
+
+    returns: the path written; raises MissingFileError when the folder does not exist
+    """
+    path = Path(path)
+    text = hand_to_mjcf(hand)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise MissingFileError(f"path: folder not found: {folder}")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

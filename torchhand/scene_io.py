@@ -1,0 +1,276 @@
+"""Scene directories (``docs/scene_format.md``): reading ``scene.toml`` + mesh + ``trajectories.npz``, and the
+atomic export.
+
+:func:`load_scene_dir` backs :func:`torchhand.scene.load_scene` for paths; :func:`export_scene_dir` backs
+:meth:`torchhand.scene.Scene.export`. Conventions (see :mod:`torchhand.conventions`): world z-up, metres, seconds,
+kilograms; poses are 4x4 rigid transforms ``T_world_frame``, float64.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+import tomllib
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .conventions import check_transforms
+from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError
+from .objects import load_object
+from .scene import DEFAULT_GRAVITY, FORMAT_VERSION, SIDES, Environment, HandTrack, Scene
+
+__all__ = ["load_scene_dir", "export_scene_dir"]
+
+_SCENE_TOML = "scene.toml"
+_MESH_FILE = "object.obj"
+_TRAJ_FILE = "trajectories.npz"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# export
+
+
+def export_scene_dir(scene: Scene, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write ``scene`` as a scene directory and return its path (see :meth:`torchhand.scene.Scene.export`)."""
+    target = Path(directory)
+    if target.exists() and not target.is_dir():
+        raise InputValueError(f"directory: '{target}' exists and is not a directory")
+    names = (_MESH_FILE, _TRAJ_FILE, _SCENE_TOML)
+    if not overwrite:
+        clash = [n for n in names if (target / n).exists()]
+        if clash:
+            raise InputValueError(
+                f"directory: '{target}' already holds {', '.join(clash)}; pass overwrite=True "
+                "(CLI: --overwrite) to replace them"
+            )
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
+    except OSError as err:
+        raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
+    try:
+        _write_files(scene, tmp)
+        target.mkdir(exist_ok=True)
+        for n in names:  # scene.toml last: a reader never sees it before the files it names
+            os.replace(tmp / n, target / n)
+    except OSError as err:
+        raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return target
+
+
+def _write_files(scene: Scene, out: Path) -> None:
+    import tomli_w
+    import trimesh
+
+    mesh = scene.object.mesh
+    text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_color=False,
+                                           include_texture=False, digits=12)
+    (out / _MESH_FILE).write_text(text, encoding="utf-8")
+    arrays = {"object_pose": scene.object_pose.detach().cpu().to(torch.float64).numpy()}
+    for h in scene.hands:
+        arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
+    with open(out / _TRAJ_FILE, "wb") as f:
+        np.savez(f, **arrays)
+    doc = {
+        "format_version": FORMAT_VERSION,
+        "scene": {
+            "name": scene.name,
+            "description": scene.description,
+            "fps": float(scene.fps),
+            "friction": float(scene.friction),
+            "gravity": [float(v) for v in scene.gravity.tolist()],
+            "trajectories": _TRAJ_FILE,
+        },
+        "object": {"name": scene.object.name, "mesh": _MESH_FILE, "mass": float(scene.object.mass),
+                   "scale": 1.0},
+        "environment": {"table": bool(scene.environment.table),
+                        "table_height": float(scene.environment.table_height),
+                        "friction": float(scene.environment.friction)},
+    }
+    text = tomli_w.dumps(doc)
+    for h in sorted(scene.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
+        text += "\n[[hands]]\n" + tomli_w.dumps({"side": h.side, "length": float(h.length)})
+    (out / _SCENE_TOML).write_text(text, encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# loading
+
+
+_SCHEMA = {
+    "": {"format_version", "scene", "object", "environment", "hands"},
+    "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
+    "object": {"name", "mesh", "mass", "density", "scale", "repair"},
+    "environment": {"table", "table_height", "friction"},
+    "hands": {"side", "length"},
+}
+
+
+class _Reader:
+    """Typed access to a parsed scene.toml with errors that name the file and the field."""
+
+    def __init__(self, path: Path, doc: dict):
+        self.path, self.doc = path, doc
+
+    def table(self, key: str, required: bool = True) -> dict:
+        if key not in self.doc:
+            if required:
+                raise FileFormatError(f"{self.path}: missing table [{key}]")
+            return {}
+        t = self.doc[key]
+        if not isinstance(t, dict):
+            raise FileFormatError(f"{self.path}: '{key}' must be a table [{key}], got {type(t).__name__}")
+        self.unknown(t, key)
+        return t
+
+    def unknown(self, t: dict, section: str) -> None:
+        extra = sorted(set(t) - _SCHEMA[section])
+        if extra:
+            where = f"[{section}]" if section else "top level"
+            raise FileFormatError(f"{self.path}: unknown key(s) {', '.join(extra)} in {where}; "
+                                  f"allowed: {', '.join(sorted(_SCHEMA[section]))}")
+
+    def get(self, t: dict, section: str, key: str, kind: str, default=...):
+        field_name = f"{section}.{key}" if section else key
+        if key not in t:
+            if default is ...:
+                raise FileFormatError(f"{self.path}: missing field {field_name}")
+            return default
+        v = t[key]
+        ok = {
+            "number": isinstance(v, (int, float)) and not isinstance(v, bool),
+            "int": isinstance(v, int) and not isinstance(v, bool),
+            "str": isinstance(v, str),
+            "bool": isinstance(v, bool),
+            "vec3": isinstance(v, list) and len(v) == 3
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v),
+        }[kind]
+        if not ok:
+            expected = {"vec3": "a list of 3 numbers", "int": "an integer", "number": "a number",
+                        "str": "a string", "bool": "true or false"}[kind]
+            raise FileFormatError(f"{self.path}: field {field_name}: expected {expected}, got {v!r}")
+        if kind == "number" and not math.isfinite(float(v)):
+            raise InputValueError(f"{self.path}: field {field_name}: expected a finite number, got {v}")
+        return v
+
+    def positive(self, t, section, key, default=..., strict=True):
+        v = self.get(t, section, key, "number", default)
+        if v is None:
+            return None
+        if (v <= 0) if strict else (v < 0):
+            raise InputValueError(f"{self.path}: field {section}.{key}: expected a number "
+                                  f"{'>' if strict else '>='} 0, got {v}")
+        return float(v)
+
+
+def load_scene_dir(directory: Path) -> Scene:
+    """Read and validate the scene directory ``directory`` (see :func:`torchhand.scene.load_scene`)."""
+    toml_path = directory / _SCENE_TOML
+    if not toml_path.is_file():
+        raise MissingFileError(f"name_or_dir: '{directory}' has no {_SCENE_TOML}")
+    try:
+        doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as err:
+        raise FileFormatError(f"{toml_path}: malformed TOML: {err}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise FileFormatError(f"{toml_path}: cannot read: {err}") from None
+    r = _Reader(toml_path, doc)
+    r.unknown(doc, "")
+    version = r.get(doc, "", "format_version", "int")
+    if version != FORMAT_VERSION:
+        raise FileFormatError(f"{toml_path}: format_version {version} is not supported (this reader: "
+                              f"{FORMAT_VERSION})")
+    sc, ob, env = r.table("scene"), r.table("object"), r.table("environment", required=False)
+
+    fps = r.positive(sc, "scene", "fps")
+    friction = r.positive(sc, "scene", "friction", strict=False)
+    gravity = r.get(sc, "scene", "gravity", "vec3", list(DEFAULT_GRAVITY))
+    name = r.get(sc, "scene", "name", "str", directory.resolve().name)
+    description = r.get(sc, "scene", "description", "str", "")
+    traj_name = r.get(sc, "scene", "trajectories", "str", _TRAJ_FILE)
+
+    mesh_name = r.get(ob, "object", "mesh", "str")
+    mass = r.positive(ob, "object", "mass", None)
+    density = r.positive(ob, "object", "density", None)
+    if mass is not None and density is not None:
+        raise FileFormatError(f"{toml_path}: give at most one of object.mass and object.density")
+    scale = r.positive(ob, "object", "scale", 1.0)
+    repair = r.get(ob, "object", "repair", "bool", False)
+    obj_name = r.get(ob, "object", "name", "str", Path(mesh_name).stem)
+
+    environment = Environment(
+        table=r.get(env, "environment", "table", "bool", False),
+        table_height=float(r.get(env, "environment", "table_height", "number", 0.0)),
+        friction=r.positive(env, "environment", "friction", 0.5, strict=False),
+    )
+
+    hands_doc = doc.get("hands")
+    if not isinstance(hands_doc, list) or not 1 <= len(hands_doc) <= 2:
+        raise FileFormatError(f"{toml_path}: expected 1 or 2 [[hands]] tables, got "
+                              f"{len(hands_doc) if isinstance(hands_doc, list) else repr(hands_doc)}")
+    hand_specs = []
+    for i, hd in enumerate(hands_doc):
+        if not isinstance(hd, dict):
+            raise FileFormatError(f"{toml_path}: hands[{i}] must be a table")
+        r.unknown(hd, "hands")
+        side = r.get(hd, f"hands[{i}]", "side", "str")
+        if side not in SIDES:
+            raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
+        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19)))
+    if len({s for s, _ in hand_specs}) != len(hand_specs):
+        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _ in hand_specs]}")
+
+    mesh_path = directory / mesh_name
+    if not mesh_path.is_file():
+        raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
+    traj_path = directory / traj_name
+    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _ in hand_specs])
+    T = arrays["object_pose"].shape[0]
+    for key, a in arrays.items():
+        if a.shape[0] != T:
+            raise ShapeError(f"{traj_path}: {key}: expected T = {T} frames (as object_pose), got {a.shape[0]}")
+        check_transforms(a, f"{traj_path}: {key}")
+
+    obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
+    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length) for s, length in hand_specs)
+    try:
+        scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
+                      friction=friction, environment=environment,
+                      gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
+                      description=description)
+        return scene.validate()
+    except TorchhandError as err:  # name the file for errors found by the dataclass checks
+        raise type(err)(f"{toml_path}: {err}") from None
+
+
+def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:
+    if not path.is_file():
+        raise MissingFileError(f"scene.trajectories: '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            present = set(data.files)
+            missing = [k for k in keys if k not in present]
+            if missing:
+                raise FileFormatError(
+                    f"{path}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(present))}"
+                )
+            raw = {k: data[k] for k in keys}
+    except TorchhandError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise FileFormatError(f"{path}: cannot read npz: {type(err).__name__}: {err}") from None
+    out = {}
+    for k, a in raw.items():
+        if a.dtype.kind not in "fiu":
+            raise FileFormatError(f"{path}: {k}: expected a numeric array, got dtype {a.dtype}")
+        if a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
+            raise ShapeError(f"{path}: {k}: expected shape (T, 4, 4), got {a.shape}")
+        out[k] = torch.tensor(a, dtype=torch.float64)
+    return out
