@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from kornia.geometry.conversions import quaternion_to_rotation_matrix, rotation_matrix_to_quaternion
 
 from .contacts_env import EnvContacts, environment_contacts
 from .conventions import check_transforms
@@ -318,31 +319,15 @@ def interpolate_poses(poses: torch.Tensor, times: torch.Tensor, new_times: torch
 
 
 def _matrix_to_quat(R: torch.Tensor) -> torch.Tensor:
-    """Unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3); numerically robust branch selection."""
-    m = R.reshape(R.shape[:-2] + (9,)).unbind(-1)
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
-    q_abs = torch.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
-                        dim=-1).clamp_min(0).sqrt()
-    cand = torch.stack([
-        torch.stack([q_abs[..., 0] ** 2, m21 - m12, m02 - m20, m10 - m01], dim=-1),
-        torch.stack([m21 - m12, q_abs[..., 1] ** 2, m10 + m01, m02 + m20], dim=-1),
-        torch.stack([m02 - m20, m10 + m01, q_abs[..., 2] ** 2, m12 + m21], dim=-1),
-        torch.stack([m10 - m01, m20 + m02, m21 + m12, q_abs[..., 3] ** 2], dim=-1),
-    ], dim=-2) / (2.0 * q_abs[..., None].clamp_min(0.1))
-    best = q_abs.argmax(dim=-1)
-    q = torch.gather(cand, -2, best[..., None, None].expand(best.shape + (1, 4))).squeeze(-2)
+    """Unit quaternions (w, x, y, z) of rotation matrices (..., 3, 3), by kornia."""
+    eps = 1e-12 if R.dtype == torch.float64 else 1e-7
+    q = rotation_matrix_to_quaternion(R.contiguous(), eps=eps)
     return q / q.norm(dim=-1, keepdim=True)
 
 
 def _quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) of quaternions (w, x, y, z) (normalised first)."""
-    q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(q.shape[:-1] + (3, 3))
+    """Rotation matrices (..., 3, 3) of quaternions (w, x, y, z), normalised first, by kornia."""
+    return quaternion_to_rotation_matrix(q / q.norm(dim=-1, keepdim=True))
 
 
 def _slerp(q0: torch.Tensor, q1: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
