@@ -42,7 +42,8 @@ def hand_object_penetration(hand: HandModel, link_poses: torch.Tensor, sdf: SDFG
     check_tensor(link_poses, "link_poses", (B, hand.num_links, 4, 4))
     check_tensor(object_pose, "object_pose", (B, 4, 4))
     return link_sample_penetration(link_poses, hand.sample_points.to(link_poses), hand.sample_link,
-                                   rigid_inverse(object_pose), sdf.values, sdf.origin, sdf.voxel_size)
+                                   rigid_inverse(object_pose), sdf.values, sdf.origin, sdf.voxel_size,
+                                   corners=sdf.corners)
 
 
 def finger_interpenetration(hand: HandModel, link_poses: torch.Tensor) -> torch.Tensor:
