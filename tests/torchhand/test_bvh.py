@@ -13,10 +13,7 @@ from scipy.spatial.transform import Rotation
 from torchhand.bvh import euler_to_matrix, read_bvh
 from torchhand.errors import FileFormatError, MissingFileError, TorchhandError, UnknownNameError
 
-
-def shared_data() -> Path:
-    default = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-    return Path(os.environ.get("TORCHHAND_SHARED_DATA", default))
+from tests.conftest import shared_data_dir as shared_data
 
 
 MOCAP = shared_data() / "mocap"

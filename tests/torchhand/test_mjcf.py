@@ -16,6 +16,8 @@ from torchhand.errors import FileFormatError, MissingFileError, TorchhandError
 from torchhand.hand import HandModel
 from torchhand.hand.mjcf import hand_to_mjcf, load_mjcf, save_mjcf
 
+from tests.conftest import shared_path
+
 mujoco = pytest.importorskip("mujoco")
 
 REPO = Path(__file__).resolve().parents[2]
@@ -24,11 +26,7 @@ N_POSES = 64
 
 
 def _hand_file(*parts: str) -> Path:
-    root = Path(os.environ.get("TORCHHAND_SHARED_DATA", REPO.parent / "shared" / "data"))
-    p = root.joinpath("hands", *parts)
-    if not p.exists():
-        pytest.skip(f"reference data not found: {p} (set TORCHHAND_SHARED_DATA)")
-    return p
+    return shared_path("hands", *parts)
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:

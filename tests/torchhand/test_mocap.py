@@ -15,10 +15,7 @@ from torchhand.errors import FileFormatError, InputValueError, ShapeError, Unkno
 from torchhand.mocap import convert_transforms, hand_frame_rotation, import_mocap_scene, manipnet_scene
 from torchhand.scene import environment_contacts
 
-
-def shared_data() -> Path:
-    default = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-    return Path(os.environ.get("TORCHHAND_SHARED_DATA", default))
+from tests.conftest import shared_data_dir as shared_data
 
 
 MANIPNET = shared_data() / "mocap" / "manipnet" / "mug1"

@@ -22,15 +22,9 @@ from torchhand.objects import (
     sample_surface,
 )
 
+from tests.conftest import shared_path as shared
+
 REPO = Path(__file__).resolve().parents[2]
-
-
-def shared(*parts: str) -> Path:
-    root = Path(os.environ.get("TORCHHAND_SHARED_DATA", REPO.parent / "shared" / "data"))
-    p = root.joinpath(*parts)
-    if not p.exists():
-        pytest.skip(f"reference data not found: {p} (set TORCHHAND_SHARED_DATA)")
-    return p
 
 
 def box(extents=(0.04, 0.06, 0.1)) -> trimesh.Trimesh:

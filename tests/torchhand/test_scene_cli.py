@@ -12,10 +12,7 @@ from torchhand.cli import main
 from torchhand.scene import load_scene
 from torchhand.scenes import list_builtin_scenes
 
-
-def shared_data() -> Path:
-    default = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
-    return Path(os.environ.get("TORCHHAND_SHARED_DATA", default))
+from tests.conftest import shared_data_dir as shared_data
 
 
 MANIPNET = shared_data() / "mocap" / "manipnet" / "mug1"

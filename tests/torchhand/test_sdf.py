@@ -18,16 +18,10 @@ import torchhand.sdf as sdf_module
 from torchhand.errors import InputTypeError, InputValueError, MeshError, ShapeError
 from torchhand.sdf import SDFGrid, inside_report, winding_number
 
+from tests.conftest import shared_path as shared
+
 REPO = Path(__file__).resolve().parents[2]
 SQRT3 = math.sqrt(3.0)
-
-
-def shared(*parts: str) -> Path:
-    root = Path(os.environ.get("TORCHHAND_SHARED_DATA", REPO.parent / "shared" / "data"))
-    p = root.joinpath(*parts)
-    if not p.exists():
-        pytest.skip(f"reference data not found: {p} (set TORCHHAND_SHARED_DATA)")
-    return p
 
 
 @pytest.fixture(scope="module")
