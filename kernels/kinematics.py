@@ -156,6 +156,27 @@ def _homogeneous(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     return torch.cat([top, bottom], dim=1).permute(3, 0, 1, 2).contiguous()
 
 
+# On CPUs large batches run in chunks of this many columns so the batch-last working set stays in cache; measured
+# on a 2-core machine at B = 65536 this is several times faster than one pass. GPUs take the whole batch at once.
+CPU_CHUNK = 1024
+
+
+def _chunked(fn, q: torch.Tensor, root: torch.Tensor, *rest):
+    B = q.shape[0]
+    if q.device.type != "cpu" or B <= CPU_CHUNK:
+        return fn(q, root, *rest)
+    parts = [fn(q[i:i + CPU_CHUNK], root[i:i + CPU_CHUNK], *[r[i:i + CPU_CHUNK] if _per_batch(r, B) else r
+                                                               for r in rest])
+             for i in range(0, B, CPU_CHUNK)]
+    if isinstance(parts[0], torch.Tensor):
+        return torch.cat(parts)
+    return tuple(torch.cat(z) for z in zip(*parts))
+
+
+def _per_batch(x, B: int) -> bool:
+    return isinstance(x, torch.Tensor) and x.dim() == 3 and x.shape[0] == B
+
+
 def forward_kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor) -> torch.Tensor:
     """World poses of all links.
 
@@ -163,8 +184,11 @@ def forward_kinematics(chain: Chain, q: torch.Tensor, root: torch.Tensor) -> tor
     root: world pose of the root's parent frame, (B, 4, 4)
     returns: T_world_link, (B, L, 4, 4)
     """
-    R, t, _, _ = _kinematics(chain, q, root, need_joints=False)
-    return _homogeneous(R, t)
+    def one(q, root):
+        R, t, _, _ = _kinematics(chain, q, root, need_joints=False)
+        return _homogeneous(R, t)
+
+    return _chunked(one, q, root)
 
 
 def joint_frames(chain: Chain, q: torch.Tensor, root: torch.Tensor):
@@ -172,8 +196,11 @@ def joint_frames(chain: Chain, q: torch.Tensor, root: torch.Tensor):
 
     returns: (T_world_link (B, L, 4, 4), axis_world (B, D, 3) unit, anchor_world (B, D, 3) metres)
     """
-    R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)
-    return _homogeneous(R, t), axis.permute(2, 0, 1), anchor.permute(2, 0, 1)
+    def one(q, root):
+        R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)
+        return _homogeneous(R, t), axis.permute(2, 0, 1), anchor.permute(2, 0, 1)
+
+    return _chunked(one, q, root)
 
 
 def fk_and_point_jacobian(
@@ -192,6 +219,10 @@ def fk_and_point_jacobian(
     returns: (T_world_link (B, L, 4, 4), points_world (B, P, 3) metres,
               jacobian (B, P, 3, D) metres per radian (hinge) / per metre (slide))
     """
+    return _chunked(lambda q, root, p: _fk_and_point_jacobian(chain, q, root, link_index, p), q, root, points_local)
+
+
+def _fk_and_point_jacobian(chain, q, root, link_index, points_local):
     R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)  # batch-last
     B, D = q.shape
     p = points_local.to(q)

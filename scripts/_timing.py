@@ -13,8 +13,9 @@ import torch
 
 
 def sync(device: str | torch.device) -> None:
-    if torch.device(device).type == "cuda":
-        torch.cuda.synchronize()
+    device = torch.device(device)
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def time_fn(fn: Callable[[], object], device: str = "cpu", repeats: int = 7, warmup: int = 2,

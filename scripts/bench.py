@@ -3,6 +3,8 @@
 Each suite runs its reference in the same process so the figure that matters is a ratio:
   fk   FK of all links + Jacobian of the five fingertips, torchhand vs pytorch_kinematics (same hand, exported MJCF)
   sdf  SDF grid trilinear queries vs trimesh's exact signed distance
+  kernels  friction-cone solver vs Clarabel, PGS LCP vs Clarabel (as QPs), DTW vs dtaidistance/tslearn,
+           the qpth adapter vs Clarabel
 Medians of several runs with their spread; results as a table, and as JSON with ``--json``.
 """
 
@@ -17,7 +19,7 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _timing import machine, print_table, write_json  # noqa: E402
 
-SUITES = ("fk", "sdf")
+SUITES = ("fk", "sdf", "kernels")
 
 
 def main(argv=None) -> int:
@@ -50,10 +52,30 @@ def main(argv=None) -> int:
         best = max(r["points_per_s"] for r in rows)
         print(f"grid query / trimesh exact: {best / ref['points_per_s']:.0f}x")
         out["suites"]["sdf"] = rows + [ref]
+    if "kernels" in suites:
+        out["suites"]["kernels"] = {}
+        for name, module, fn, kwargs in (
+            ("friction_cone", "bench_cone", "bench_cone", {"device": a.device}),
+            ("pgs", "bench_lcp", "bench_pgs", {"device": a.device}),
+            ("dtw", "bench_dtw", "bench_dtw", {"device": a.device}),
+            ("qp", "bench_qp", "bench_qp", {"device": a.device}),
+        ):
+            rows = getattr(__import__(module), fn)(**kwargs)
+            print(f"\n[kernels: {name}]")
+            print_table(rows, _columns(rows))
+            out["suites"]["kernels"][name] = rows
     if a.json:
         write_json(a.json, out)
         print(f"\nwrote {a.json}")
     return 0
+
+
+def _columns(rows: list[dict]) -> list[str]:
+    """Union of the rows' keys in first-seen order, leaving out nested values."""
+    cols: list[str] = []
+    for r in rows:
+        cols += [k for k, v in r.items() if k not in cols and not isinstance(v, (dict, list))]
+    return cols
 
 
 if __name__ == "__main__":

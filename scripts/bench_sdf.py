@@ -2,8 +2,8 @@
 
 Runs without ../shared: the mesh is procedural (a mug-sized capsule, 16 cm long, 4 cm radius; a 2 mm voxel gives
 a 65 x 65 x 105 grid). Query points are drawn uniformly in the grid box enlarged by 1 cm (seeded
-torch.Generator). Timings are medians over ``repeats`` runs with the spread given as min-max; the GPU is
-synchronised inside the timed region.
+torch.Generator). Timings come from the shared ``scripts/_timing.py`` (``time_fn``): medians over ``repeats`` runs
+after one warm-up, with the spread given as max - min; the GPU is synchronised inside the timed region.
 
     python scripts/bench_sdf.py --device cpu --dtype float32 --json bench_sdf.json
 """
@@ -11,19 +11,19 @@ synchronised inside the timed region.
 from __future__ import annotations
 
 import argparse
-import json
-import statistics
+import os
 import sys
 import tempfile
-import time
-from typing import Callable
 
 import numpy as np
 import torch
 import trimesh
 
-from torchhand.kernels.sdf import sdf_trilinear
-from torchhand.sdf import SDFGrid
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # scripts/ is not a package
+from _timing import machine, print_table, time_fn, write_json  # noqa: E402
+
+from torchhand.kernels.sdf import sdf_trilinear  # noqa: E402
+from torchhand.sdf import SDFGrid  # noqa: E402
 
 MILLION = 1_048_576
 VOXEL = 0.002
@@ -45,31 +45,17 @@ def _points(grid: SDFGrid, b: int, p: int, generator: torch.Generator) -> torch.
     return lo + torch.rand(b, p, 3, generator=generator, dtype=torch.float64) * (hi - lo)
 
 
-def _time(fn: Callable[[], object], repeats: int, device: torch.device) -> list[float]:
-    fn()  # warm-up
-    out = []
-    for _ in range(repeats):
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        t0 = time.perf_counter()
-        fn()
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        out.append(time.perf_counter() - t0)
-    return out
-
-
-def _row(name: str, device: str, dtype: torch.dtype, b: int, points: int, times: list[float]) -> dict:
-    median = statistics.median(times)
+def _row(name: str, device: str, dtype: torch.dtype, b: int, points: int, timing: dict) -> dict:
+    """One result row from a :func:`_timing.time_fn` result (median and max - min spread of the per-call seconds)."""
     return {
         "name": name,
         "device": str(device),
         "dtype": str(dtype).replace("torch.", ""),
         "B": int(b),
         "points": int(points),
-        "median_s": median,
-        "spread_s": max(times) - min(times),
-        "points_per_s": points / median,
+        "median_s": timing["median_s"],
+        "spread_s": timing["max_s"] - timing["min_s"],
+        "points_per_s": points / timing["median_s"],
     }
 
 
@@ -97,11 +83,12 @@ def bench_sdf(
         for b in sizes:
             pts = _points(grid, b, points_per_batch, gen).to(dev, dtype)
             n = b * points_per_batch
-            rows.append(_row("sdf_query", device, dtype, b, n, _time(lambda: grid.query(pts), repeats, dev)))
+            rows.append(_row("sdf_query", device, dtype, b, n,
+                             time_fn(lambda: grid.query(pts), dev, repeats, warmup=1)))
             rows.append(_row("sdf_query_with_grad", device, dtype, b, n,
-                             _time(lambda: grid.query_with_grad(pts), repeats, dev)))
-            rows.append(_row("sdf_query_gather8", device, dtype, b, n, _time(
-                lambda: sdf_trilinear(grid.values, grid.origin, grid.voxel_size, pts), repeats, dev)))
+                             time_fn(lambda: grid.query_with_grad(pts), dev, repeats, warmup=1)))
+            rows.append(_row("sdf_query_gather8", device, dtype, b, n, time_fn(
+                lambda: sdf_trilinear(grid.values, grid.origin, grid.voxel_size, pts), dev, repeats, warmup=1)))
     return rows
 
 
@@ -110,25 +97,20 @@ def bench_trimesh_reference(n_points: int = 2000, repeats: int = 3, seed: int = 
     mesh = bench_mesh()
     grid = _grid(mesh)
     pts = _points(grid, 1, n_points, torch.Generator().manual_seed(seed))[0].numpy()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        trimesh.proximity.signed_distance(mesh, pts)
-        times.append(time.perf_counter() - t0)
-    return _row("trimesh_signed_distance", "cpu", torch.float64, 1, n_points, times)
+    timing = time_fn(lambda: trimesh.proximity.signed_distance(mesh, pts), "cpu", repeats, warmup=0)
+    return _row("trimesh_signed_distance", "cpu", torch.float64, 1, n_points, timing)
 
 
-def _table(rows: list[dict], reference: dict | None) -> str:
-    head = f"{'name':<24} {'device':<6} {'dtype':<8} {'B':>7} {'points':>9} {'median ms':>10} {'spread ms':>10} " \
-           f"{'M pts/s':>9}" + (f" {'x trimesh':>10}" if reference else "")
-    lines = [head, "-" * len(head)]
-    for r in rows + ([reference] if reference else []):
-        line = (f"{r['name']:<24} {r['device']:<6} {r['dtype']:<8} {r['B']:>7} {r['points']:>9} "
-                f"{r['median_s'] * 1e3:>10.3f} {r['spread_s'] * 1e3:>10.3f} {r['points_per_s'] / 1e6:>9.3f}")
-        if reference:
-            line += f" {r['points_per_s'] / reference['points_per_s']:>10.0f}"
-        lines.append(line)
-    return "\n".join(lines)
+COLUMNS = ["name", "device", "dtype", "B", "points", "median_s", "spread_s", "points_per_s"]
+
+
+def _print_rows(rows: list[dict], reference: dict | None) -> None:
+    """The rows (and the reference) as a table; with a reference, each row's speed-up over it as ``x_trimesh``."""
+    if reference is None:
+        print_table(rows, COLUMNS)
+        return
+    shown = [dict(r, x_trimesh=r["points_per_s"] / reference["points_per_s"]) for r in rows + [reference]]
+    print_table(shown, COLUMNS + ["x_trimesh"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -145,12 +127,12 @@ def main(argv: list[str] | None = None) -> int:
     dtype = getattr(torch, args.dtype)
     rows = bench_sdf(args.device, dtype, tuple(args.batch_sizes), args.points_per_batch, args.repeats, args.seed)
     reference = None if args.no_reference else bench_trimesh_reference(seed=args.seed)
-    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, mesh: capsule, voxel {VOXEL} m")
-    print(_table(rows, reference))
+    info = machine()
+    print(f"machine: {info}, mesh: capsule, voxel {VOXEL} m")
+    _print_rows(rows, reference)
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump({"rows": rows, "reference": reference, "torch": torch.__version__,
-                       "threads": torch.get_num_threads(), "numpy": np.__version__}, fh, indent=2)
+        write_json(args.json, {"machine": info, "rows": rows, "reference": reference, "torch": torch.__version__,
+                               "threads": torch.get_num_threads(), "numpy": np.__version__})
     return 0
 
 
