@@ -1,0 +1,215 @@
+"""The ``torchhand render`` and ``torchhand plot`` jobs as library functions over a result directory.
+
+:func:`result_clips` turns chosen solutions (and an optional reference motion) into labelled clips;
+:func:`render_result` writes them as a video; :func:`plot_result` writes the PNG plots. The CLI modules only parse
+arguments and call these.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from torchhand.errors import InputValueError, MissingFileError
+
+from .clip import Clip, clip_from_solution
+from .compose import RenderOptions, write_video
+from .contact_analysis import finger_contacts, solution_summary
+from .results import ResultDir, Solution, load_result_dir, load_solution, parse_solution_spec
+
+__all__ = ["parse_size", "parse_frames", "stats_line", "result_clips", "render_result", "plot_result",
+           "open_result"]
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480); both between 16 and 8192 pixels."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise InputValueError(f"--size: expected WIDTHxHEIGHT like 640x480, got {text!r}") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise InputValueError(f"--size: width and height must be in [16, 8192] pixels, got {w}x{h}")
+    return w, h
+
+
+def parse_frames(text: str | None, T: int) -> tuple[int, int]:
+    """``"A:B"`` (Python slice, either end may be empty) -> (start, stop) within ``T`` frames."""
+    if text is None:
+        return 0, T
+    try:
+        a, b = str(text).split(":")
+        start, stop = int(a) if a.strip() else 0, int(b) if b.strip() else T
+    except ValueError:
+        raise InputValueError(f"--frames: expected A:B like 0:30, got {text!r}") from None
+    if not 0 <= start < stop <= T:
+        raise InputValueError(f"--frames: expected 0 <= A < B <= {T} (the clip has {T} frames), got {text!r}")
+    return start, stop
+
+
+def stats_line(stats: dict) -> str:
+    """Key search statistics from ``stats.json`` on one line ('' when there are none)."""
+    parts = []
+    if "solutions" in stats:
+        parts.append(f"{stats['solutions']} solutions")
+    if "dead_ends" in stats:
+        parts.append(f"{stats['dead_ends']} dead ends")
+    if "time_s" in stats:
+        try:
+            parts.append(f"{float(stats['time_s']):.1f} s search")
+        except (TypeError, ValueError):
+            pass
+    if "epsilon" in stats:
+        parts.append(f"eps {stats['epsilon']}")
+    return ", ".join(parts)
+
+
+def open_result(path) -> tuple[ResultDir | None, list]:
+    """A result directory, or a lone solution npz (drawn as hands alone): (result or None, solution files)."""
+    p = Path(path)
+    if p.is_file() and p.suffix == ".npz":
+        return None, [p]
+    if not p.exists():
+        raise MissingFileError(f"result directory {p} does not exist (expected the output of `torchhand "
+                               f"synthesize` or a solution .npz)")
+    result = load_result_dir(p)
+    return result, list(result.solution_files)
+
+
+def _lone_solution_clip(sol: Solution, labels) -> Clip:
+    from torchhand.hand import default_hand
+
+    from .clip import HandTrackLinks, hand_link_poses
+
+    hands = []
+    for h in sol.hands:
+        model = default_hand(h.side if h.side in ("right", "left") else "right")
+        hands.append(HandTrackLinks(model, hand_link_poses(model, h.q, h.root_pose, h.joint_names)))
+    return Clip(hands=tuple(hands), fps=sol.fps, contact_mask=sol.contact_mask, contact_point=sol.contact_point,
+                contact_force=sol.contact_force, env_contact_mask=sol.env_contact_mask,
+                env_contact_point=sol.env_contact_point, env_contact_force=sol.env_contact_force,
+                labels=tuple(labels))
+
+
+def result_clips(path, solutions: str | None = None, *, compare=None, labels: bool = True) -> list[Clip]:
+    """Labelled clips for ``solutions`` ("0,1,2", "all", None = first) of the result at ``path``; with ``compare``
+    (another result directory, whose first solution is used, or a solution npz) the reference comes first."""
+    result, files = open_result(path)
+    indices = parse_solution_spec(solutions, len(files))
+    stats = stats_line(result.stats) if result is not None else ""
+    clips = []
+    if compare is not None:
+        clips.append(_reference_clip(compare, result))
+    for i in indices:
+        sol = load_solution(files[i])
+        text = [f"solution {i}" + (f": {sol.strategy}" if sol.strategy else ""), solution_summary(sol), stats]
+        if compare is not None:
+            text[0] = f"synthesized, {text[0]}"
+        text = [t for t in text if t] if labels else []
+        clips.append(clip_from_solution(result, sol, labels=text) if result is not None
+                     else _lone_solution_clip(sol, text))
+    return clips
+
+
+def _reference_clip(reference, result: ResultDir | None) -> Clip:
+    ref = Path(reference)
+    if ref.is_dir():
+        ref_result, files = open_result(ref)
+        if not files:
+            raise InputValueError(f"--compare {ref}: the result directory has no solutions")
+        sol = load_solution(files[0])
+        return clip_from_solution(ref_result, sol, labels=[f"reference: {ref.name}", solution_summary(sol)])
+    sol = load_solution(ref)
+    label = [f"reference: {ref.name}", solution_summary(sol)]
+    if result is None:
+        return _lone_solution_clip(sol, label)
+    return clip_from_solution(result, sol, labels=[t for t in label if t])
+
+
+def render_result(path, out, *, solutions: str | None = None, grid: bool = False, size=(640, 480),
+                  fps: float | None = None, fmt: str | None = None, frames: str | None = None, orbit: bool = False,
+                  compare=None, shadows: bool = True, progress: bool | None = None) -> dict:
+    """Render a result directory to ``out`` (see ``torchhand render --help``). Returns a summary dict with the
+    output path, frame count, frame size and format.
+
+    progress: True / False / None (= a bar only on a terminal).
+    """
+    from tqdm import tqdm
+
+    from .video import check_writer, infer_format
+
+    fmt = infer_format(out, fmt)
+    check_writer(fmt)  # fail before the slow part
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise InputValueError(f"--fps: expected a positive number, got {fps}")
+    if grid and solutions is None:
+        solutions = "all"
+    clips = result_clips(path, solutions, compare=compare, labels=grid or compare is not None
+                         or (solutions is not None and solutions != "0"))
+    T = max(c.T for c in clips)
+    start, stop = parse_frames(frames, T)
+    clips = [c.frames(min(start, c.T - 1), min(stop, c.T)) for c in clips]
+    n = max(c.T for c in clips)
+    opts = RenderOptions(width=size[0], height=size[1], orbit=orbit, shadows=shadows,
+                         max_cols=None if grid or len(clips) <= 3 else 3)
+    bar = tqdm(total=n, desc="render", unit="frame", disable=(not progress) if progress is not None else None)
+    try:
+        written = write_video(clips, out, fmt, opts, fps=fps, progress=bar)
+    finally:
+        bar.close()
+    from .overlay import grid_shape
+
+    rows, cols = grid_shape(len(clips), opts.max_cols)
+    w, h = cols * size[0] + 2 * (cols - 1), rows * size[1] + 2 * (rows - 1)
+    if fmt == "mp4":  # H.264 in yuv420p: even sizes
+        w, h = w - w % 2, h - h % 2
+    return {"out": str(written), "frames": n, "format": fmt, "panels": len(clips), "size": (w, h)}
+
+
+def plot_result(path, out_dir, *, solution: int = 0, solutions: str | None = "all", slide_speed: float = 0.01,
+                max_series: int = 8) -> list[Path]:
+    """Write contact_timeline.png, forces.png and joints.png for the result at ``path`` into ``out_dir``.
+
+    solution: the solution whose contacts and forces are plotted; solutions: those overlaid in joints.png (at most
+    ``max_series``).
+    """
+    from .plots import plot_contact_timeline, plot_forces, plot_joints
+
+    if not (np.isfinite(slide_speed) and slide_speed > 0):
+        raise InputValueError(f"--slide-speed: expected a positive speed in m/s, got {slide_speed}")
+    result, files = open_result(path)
+    if result is None:
+        from torchhand.hand import default_hand
+
+        models = None
+    else:
+        models = result.hand_models
+    index = parse_solution_spec(str(solution), len(files))[0]
+    sol = load_solution(files[index])
+    if models is None:
+        models = {h.side: default_hand(h.side if h.side in ("right", "left") else "right") for h in sol.hands}
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputValueError(f"--out {out}: expected a directory, got a file")
+    out.mkdir(parents=True, exist_ok=True)
+    name = Path(path).name
+    written = []
+    if sol.contact_mask is not None and sol.contact_link is not None and sol.contact_point is not None:
+        fc = finger_contacts(sol, models, slide_speed=slide_speed,
+                             friction=sol.friction if sol.friction is not None else
+                             (result.scene.friction if result is not None else None))
+        tag = f"{name}, solution {index}" + (f" ({sol.strategy})" if sol.strategy else "")
+        written.append(plot_contact_timeline(fc, out / "contact_timeline.png",
+                                             f"contact state per finger: {tag} (sliding > {slide_speed:g} m/s)"))
+        written.append(plot_forces(fc, out / "forces.png", f"contact forces per finger: {tag}"))
+    chosen = parse_solution_spec(solutions, len(files))[:max_series]
+    for h in sol.hands:
+        series = []
+        for i in chosen:
+            s = load_solution(files[i])
+            hs = s.hand(h.side) or s.hands[0]
+            series.append((f"solution {i}" + (f" ({s.strategy})" if s.strategy else ""), hs.q, hs.joint_names))
+        suffix = "" if len(sol.hands) == 1 else f"_{h.side}"
+        written.append(plot_joints(series, models[h.side], sol.fps, out / f"joints{suffix}.png",
+                                   f"flexion joints per finger ({h.side} hand): {name}"))
+    return written

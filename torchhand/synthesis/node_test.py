@@ -1,0 +1,398 @@
+"""The node test of Ye & Liu 2012 §4.3, batched: kinematic test (IK, penetration resolution, finger–finger check,
+contact collection) then dynamic test (friction-cone forces), for N candidate guiding configurations at once.
+
+Each candidate n sits at its own frame ``t[n]`` with its own previous pose ``q_prev[n]``; all H hands of the scene
+are solved together (their fingers are independent in the IK, their forces are solved jointly). Shapes: N
+candidates, H hands, F fingers per hand, L links per hand, D finger joints per hand, K = H L hand-contact slots
+(one per link: the link's closest surface sample), E environment-contact slots.
+
+IK (Eqs. 1–3) is a projected Levenberg–Marquardt on the guiding points, the nail-normal condition (Eq. 2, as a
+one-sided penalty: nail · outward surface normal >= ``nail_cos``) and a weak pull toward q_prev, with the box
+``max(limit_lo, q_prev - dq) <= q <= min(limit_hi, q_prev + dq)`` (Eq. 3 and the joint limits) enforced by
+projection. Penetration resolution (§4.3): deviation from the paper, which re-solves the IK a few times with the
+deepest (hand point, surface point) pair of each colliding phalanx substituted in. Here every finger link's
+collision capsule contributes one-sided residuals max(0, r + margin - sd) at points along its axis to the same
+Levenberg–Marquardt problem, so penetration is resolved in one solve, for every finger link (the thumb's
+metacarpal and the proximal phalanges too: in this hand they have 3- and 2-DOF joints and the wrist tracks often
+bring them into the object), guided or free; the guiding point stays in the problem.
+
+Contacts P: for every link, its surface sample with the smallest signed distance, when that distance is within
+``contact_dist``; the contact point is that sample projected onto the object surface, the normal points into
+the object. The dynamic test (Eqs. 4–8) solves the hand contacts and the object-table contacts together with the
+friction-cone kernel (float64), sliding contacts restricted to their cone's boundary ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from torchhand.kernels.friction_cone import solve_friction_cone
+from torchhand.kernels.penetration import capsule_interpenetration, link_sample_penetration
+from torchhand.kernels.status import SolverStatus
+
+from .problem import SynthesisProblem
+
+__all__ = ["Guides", "NodeTestSettings", "FrameResult", "test_frame", "CAUSE_NONE", "CAUSE_KINEMATIC",
+           "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
+
+CAUSE_NONE, CAUSE_KINEMATIC, CAUSE_FINGERS, CAUSE_DYNAMIC = 0, 1, 2, 3
+FORCE_ZERO, FORCE_INSIDE, FORCE_BOUNDARY = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Guides:
+    """Guiding configurations c (Ye & Liu §3): at most one guiding point per finger, N candidates.
+
+    active: finger has a guiding point, (N, H, F) bool
+    link:   link (index within its hand) carrying the hand point p.h, (N, H, F) long
+    local:  the hand point p.h in that link's frame, (N, H, F, 3), metres
+    obj:    the object point p.o, (N, H, F, 3), object frame, metres
+    slide:  unit direction in which p.o moves along the surface this frame (sliding contact), (N, H, F, 3), object
+            frame; zeros for a static contact
+    """
+
+    active: torch.Tensor
+    link: torch.Tensor
+    local: torch.Tensor
+    obj: torch.Tensor
+    slide: torch.Tensor
+
+
+@dataclass(frozen=True)
+class NodeTestSettings:
+    """Tolerances and iteration counts of the node test (metres, radians)."""
+
+    dq: float = 0.2                # |q - q_prev| bound per frame (Eq. 3), radians
+    ik_iters: int = 20             # LM iterations
+    ik_tol: float = 0.002          # a guiding point farther than this from its target fails the finger
+    nail_cos: float = 0.0          # Eq. 2: nail . outward normal >= nail_cos
+    nail_weight: float = 0.02      # metres per unit of nail misalignment
+    reg_weight: float = 0.003      # pull toward the initial pose, metres per radian
+    damping: float = 1e-7
+    pen_tol: float = 0.001         # deepest allowed penetration (SDF), metres
+    push_margin: float = 0.0003    # capsules are kept this far outside the surface, metres
+    contact_dist: float = 0.0012   # a link's closest sample within this distance is a contact, metres
+    finger_tol: float = 0.001      # finger-finger capsule overlap allowed, metres
+    env_weight: float = 0.0        # objective weight of table contacts (Eq. 4)
+    boundary: float = 0.97         # |f_t| >= boundary mu f_n: the force is on the cone's boundary
+    zero_force: float = 1e-3       # f_n below zero_force * weight: no force
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Outcome of the node test for N candidates.
+
+    q:           finger joint angles, (N, H, D), radians
+    feasible:    (N,) bool; cause: (N,) int, CAUSE_* of the first failure (kinematic > fingers > dynamic)
+    kin_fail:    fingers that failed the kinematic test, (N, H, F) bool
+    pair:        global finger indices (h F + f) of the deepest finger-finger overlap, (N, 2) long, -1 if none
+    c_mask:      hand contacts, (N, K) bool, K = H L (slot h L + l is link l of hand h)
+    c_local:     hand point of each contact in its link's frame, (N, K, 3); c_point: contact point on the object
+                 surface, (N, K, 3) world; c_normal: into the object, (N, K, 3); c_force: force of the hand on the
+                 object, (N, K, 3) world, newtons (zero unless the dynamic test ran and converged)
+    env_force:   (N, E, 3) world, newtons
+    penetration: deepest penetration of any hand sample, (N,), metres (>= 0)
+    guide_err:   distance of each guiding point from its target, (N, H, F), metres (0 where inactive)
+    seed_*:      per finger, its most distal contact (Ye & Liu §4.2 seeds): seed_on (N, H, F) bool, seed_link
+                 (N, H, F) long, seed_local (N, H, F, 3) link frame, seed_obj (N, H, F, 3) object frame,
+                 seed_class (N, H, F) long FORCE_*, seed_tdir (N, H, F, 3) unit tangential force, object frame
+    """
+
+    q: torch.Tensor
+    feasible: torch.Tensor
+    cause: torch.Tensor
+    kin_fail: torch.Tensor
+    pair: torch.Tensor
+    c_mask: torch.Tensor
+    c_local: torch.Tensor
+    c_point: torch.Tensor
+    c_normal: torch.Tensor
+    c_force: torch.Tensor
+    env_force: torch.Tensor
+    penetration: torch.Tensor
+    guide_err: torch.Tensor
+    seed_on: torch.Tensor
+    seed_link: torch.Tensor
+    seed_local: torch.Tensor
+    seed_obj: torch.Tensor
+    seed_class: torch.Tensor
+    seed_tdir: torch.Tensor
+
+
+def _transform(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """T (..., 4, 4) applied to points p (..., 3)."""
+    return (T[..., :3, :3] @ p.unsqueeze(-1)).squeeze(-1) + T[..., :3, 3]
+
+
+def _rotate(T: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    return (T[..., :3, :3] @ v.unsqueeze(-1)).squeeze(-1)
+
+
+def pad_points(hand) -> torch.Tensor:
+    """The fingertip pads on the collision surface: ``hand.fingertip`` projected onto its distal link's capsule,
+    (F, 3), distal-link frame, metres. The search guides these points, so a guided fingertip touches the object
+    with the same surface the contact checks see."""
+    a, b = hand.capsule_a[hand.distal_link], hand.capsule_b[hand.distal_link]
+    r = hand.capsule_radius[hand.distal_link]
+    tip = hand.fingertip
+    u = (((tip - a) * (b - a)).sum(-1) / ((b - a) * (b - a)).sum(-1).clamp_min(1e-12)).clamp(0, 1)
+    axis = a + u[:, None] * (b - a)
+    d = tip - axis
+    return axis + r[:, None] * d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _axis_points(hand, per_link: int = 5):
+    """Points along the capsule axis of every finger link: (link (P,) long, local (P, 3), radius (P,))."""
+    links = hand.finger_links[hand.finger_links >= 0]
+    u = torch.linspace(0, 1, per_link, dtype=hand.dtype, device=hand.device)
+    a, b = hand.capsule_a[links], hand.capsule_b[links]                      # (M, 3)
+    local = a[:, None] + u[None, :, None] * (b - a)[:, None]                 # (M, n, 3)
+    return (links[:, None].expand(-1, per_link).reshape(-1), local.reshape(-1, 3),
+            hand.capsule_radius[links][:, None].expand(-1, per_link).reshape(-1))
+
+
+def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, slot_local, target, weight,
+              nail_target, nail_on, iters: int, s: NodeTestSettings) -> torch.Tensor:
+    """Projected Levenberg–Marquardt on weighted point targets, the nail condition and non-penetration.
+
+    root, T_obj, T_inv (N, 4, 4); q, lo, hi, anchor (N, D); slot_link (P,) long; slot_local (N, P, 3); target
+    (N, P, 3) world; weight (N, P) (0 = slot unused); nail_target (N, F, 3) outward unit normals; nail_on (N, F).
+    Non-penetration: for points along every finger link's capsule axis, the one-sided residual
+    max(0, radius + margin - sd(point)) with its SDF-gradient Jacobian.
+    """
+    N, D = q.shape
+    F = hand.num_fingers
+    P = slot_link.shape[0]
+    nail_local = hand.fingertip + hand.nail_normal                      # (F, 3), distal frame
+    ax_link, ax_local, ax_r = _axis_points(hand)
+    A_ = ax_link.shape[0]
+    link_all = torch.cat([slot_link, hand.distal_link, hand.distal_link, ax_link])
+    eye = torch.eye(D, dtype=q.dtype, device=q.device)
+    reg = s.reg_weight ** 2
+    R_inv, t_inv = T_inv[:, None, :3, :3], T_inv[:, None, :3, 3]
+    # Levenberg–Marquardt with per-candidate damping: a trial point whose cost rises is rejected (back to the
+    # best point, damping x 10), an accepted one lowers the damping; the projection keeps q inside the box.
+    lam = torch.full((N, 1, 1), 1e-4, dtype=q.dtype, device=q.device)
+    best_q, best_cost = q, torch.full((N,), float("inf"), dtype=q.dtype, device=q.device)
+    best_A = best_g = None
+    for _ in range(iters + 1):
+        local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
+                           ax_local.expand(N, A_, 3)], 1)
+        _, x, J = hand.kinematics(q, link_all, local, root)
+        r = (x[:, :P] - target) * weight[..., None]                         # (N, P, 3)
+        Jw = J[:, :P] * weight[..., None, None]
+        g_vec = x[:, P + F:P + 2 * F] - x[:, P:P + F]                       # nail normals, world (N, F, 3)
+        Jg = J[:, P + F:P + 2 * F] - J[:, P:P + F]                          # (N, F, 3, D)
+        c = (g_vec * nail_target).sum(-1)                                   # (N, F)
+        viol = nail_on & (c < s.nail_cos)
+        rn = torch.where(viol, (c - s.nail_cos) * s.nail_weight, torch.zeros_like(c))
+        Jn = (nail_target.unsqueeze(-1) * Jg).sum(-2) * (s.nail_weight * viol.to(q.dtype))[..., None]  # (N, F, D)
+        xa = x[:, P + 2 * F:]
+        sd, grad = problem.sdf.query_with_grad((R_inv @ xa.unsqueeze(-1)).squeeze(-1) + t_inv)
+        g_world = (T_obj[:, None, :3, :3] @ grad.unsqueeze(-1)).squeeze(-1)
+        ra = (ax_r + s.push_margin - sd).clamp_min(0)                       # (N, A)
+        on = (ra > 0).to(q.dtype)
+        Ja = -(g_world.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * on[..., None]   # (N, A, D)
+        Jf = torch.cat([Jw.reshape(N, -1, D), Jn, Ja], 1)
+        rf = torch.cat([r.reshape(N, -1), rn, ra], 1)
+        cost = (rf * rf).sum(-1) + reg * ((q - anchor) ** 2).sum(-1)
+        A = Jf.transpose(1, 2) @ Jf + reg * eye
+        g = (Jf.transpose(1, 2) @ rf.unsqueeze(-1)).squeeze(-1) + reg * (q - anchor)
+        better = cost <= best_cost
+        b3 = better[:, None, None]
+        lam = torch.where(b3, lam / 3, lam * 10).clamp(1e-9, 1e3)
+        best_cost = torch.where(better, cost, best_cost)
+        best_q = torch.where(better[:, None], q, best_q)
+        best_A = A if best_A is None else torch.where(b3, A, best_A)
+        best_g = g if best_g is None else torch.where(better[:, None], g, best_g)
+        Ad = best_A + (lam * best_A.diagonal(dim1=1, dim2=2).mean(-1, keepdim=True)[..., None] + s.damping) * eye
+        L, _ = torch.linalg.cholesky_ex(Ad)
+        step = torch.cholesky_solve(-best_g.unsqueeze(-1), L).squeeze(-1)
+        q = torch.minimum(torch.maximum(best_q + step, lo), hi)
+    return best_q
+
+
+def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_prev: torch.Tensor,
+                         first: torch.Tensor, guides: Guides, s: NodeTestSettings):
+    """IK with penetration resolution for hand h. Returns q (N, D), link poses (N, L, 4, 4), guide error (N, F),
+    and the penetration result of the final pose (all surface samples against the SDF)."""
+    hand = problem.hands[h]
+    N = t.shape[0]
+    L, F, D = hand.num_links, hand.num_fingers, hand.num_joints
+    dtype, device = q_prev.dtype, q_prev.device
+    root = problem.root[h, t]
+    T_obj = problem.object_pose[t]
+    T_inv = problem.object_inv[t]
+    lim = hand.joint_limits
+    dq = torch.where(first[:, None], torch.full_like(q_prev, 10.0), torch.full_like(q_prev, s.dq))
+    lo = torch.maximum(lim[:, 0], q_prev - dq)
+    hi = torch.minimum(lim[:, 1], q_prev + dq)
+    # joints of unguided (free) fingers: start at q_prev moved toward rest (§6: free fingers assume a rest pose)
+    # and move only as far as penetration resolution needs (the regularisation holds them there otherwise)
+    act = guides.active[:, h]                                           # (N, F)
+    joint_finger = hand.link_finger[hand.chain.joint_link]              # (D,)
+    guided_joint = act.gather(1, joint_finger.clamp_min(0).expand(N, D)) & (joint_finger >= 0)
+    q_free = torch.minimum(torch.maximum(hand.q_rest.expand(N, D), lo), hi)
+    q_free = q_prev + 0.5 * (q_free - q_prev)
+    q0 = torch.where(guided_joint, q_prev.clamp(lim[:, 0], lim[:, 1]), q_free)
+
+    # guiding slots: one per link (the guide's link gets its point, weight 1)
+    slot_link = torch.arange(L, device=device)
+    onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(dtype) * act[..., None].to(dtype)   # (N, F, L)
+    g_local = torch.einsum("nfl,nfc->nlc", onehot, guides.local[:, h])
+    g_world = _transform(T_obj[:, None], guides.obj[:, h])              # (N, F, 3)
+    # nail condition (Eq. 2) against the outward normal at the target
+    _, grad = problem.sdf.query_with_grad(guides.obj[:, h])
+    n_out = _rotate(T_obj[:, None], grad / grad.norm(dim=-1, keepdim=True).clamp_min(1e-9))
+    # the hand point aims just outside the surface, where the capsules' non-penetration margin lets it be
+    g_world = g_world + s.push_margin * n_out
+    g_target = torch.einsum("nfl,nfc->nlc", onehot, g_world)
+    g_weight = onehot.sum(1)                                             # (N, L)
+    q = _lm_solve(problem, hand, root, T_obj, T_inv, q0, lo, hi, q0, slot_link, g_local, g_target, g_weight,
+                  n_out, act, s.ik_iters, s)
+    poses = hand.forward_kinematics(q, root)
+    pen = link_sample_penetration(poses, hand.sample_points, hand.sample_link, T_inv, problem.sdf.values,
+                                  problem.sdf.origin, problem.sdf.voxel_size, corners=problem.sdf.corners)
+    tip_link = guides.link[:, h]
+    T_g = poses.gather(1, tip_link[..., None, None].expand(N, F, 4, 4))
+    err = (_transform(T_g, guides.local[:, h]) - g_world).norm(dim=-1) * act.to(dtype)
+    return q, poses, err, pen
+
+
+def test_frame(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
+               guides: Guides, weights: torch.Tensor | None = None,
+               settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True) -> FrameResult:
+    """Kinematic and dynamic test of N candidates (see the module docstring).
+
+    t: frame of each candidate, (N,) long; q_prev: previous pose, (N, H, D), radians; first: no previous pose
+    (Eq. 3 is not applied), (N,) bool; guides: :class:`Guides`; weights: objective weight of each hand contact's
+    finger, (N, H, F) (default 1; the palm's weight is 1); dynamics: False skips the dynamic test (forces zero,
+    feasibility from the kinematic test alone).
+    """
+    s = settings
+    H, F = problem.H, problem.F
+    N = t.shape[0]
+    dtype, device = q_prev.dtype, q_prev.device
+    qs, kin_fail, errs, pens, c_mask, c_local, c_point, c_normal = [], [], [], [], [], [], [], []
+    capsule_depth, capsule_pair = [], []
+    link_weight = []
+    T_obj = problem.object_pose[t]
+    for h in range(H):
+        hand = problem.hands[h]
+        L = hand.num_links
+        q, poses, err, pen = _hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, s)
+        lf = hand.link_finger                                                        # (L,)
+        deep = pen.deepest_value                                                     # (N, L)
+        too_deep = deep < -s.pen_tol
+        fail = err > s.ik_tol                                                        # (N, F)
+        fingers_deep = torch.zeros(N, F, dtype=torch.bool, device=device)
+        fingers_deep.scatter_reduce_(1, lf.clamp_min(0).expand(N, L), too_deep & (lf >= 0), reduce="amax")
+        palm_deep = (too_deep & (lf < 0)).any(-1, keepdim=True)
+        fail = fail | fingers_deep | palm_deep
+        kin_fail.append(fail)
+        qs.append(q)
+        errs.append(err)
+        pens.append((-deep).clamp_min(0).amax(-1))
+        # finger-finger interpenetration (capsules)
+        depth, _, _ = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_radius,
+                                               hand.collision_pairs)
+        capsule_depth.append(depth)
+        capsule_pair.append(lf[hand.collision_pairs] + h * F)                      # (Q, 2)
+        # contacts: each link's closest sample within contact_dist
+        on = (deep <= s.contact_dist) & (deep >= -s.pen_tol)
+        c_mask.append(on)
+        c_local.append(hand.sample_points[pen.deepest_index.clamp_min(0)])
+        c_point.append(pen.deepest_point - deep.clamp(-1, 1)[..., None] * pen.deepest_normal)
+        c_normal.append(-pen.deepest_normal)
+        w = torch.ones(N, L, dtype=dtype, device=device) if weights is None else \
+            torch.where(lf >= 0, weights[:, h].gather(1, lf.clamp_min(0).expand(N, L)), torch.ones_like(deep))
+        link_weight.append(w)
+    q = torch.stack(qs, 1)
+    kin_fail = torch.stack(kin_fail, 1)
+    guide_err = torch.stack(errs, 1)
+    penetration = torch.stack(pens, 1).amax(1)
+    c_mask, c_local = torch.cat(c_mask, 1), torch.cat(c_local, 1)
+    c_point, c_normal = torch.cat(c_point, 1), torch.cat(c_normal, 1)
+    depth = torch.cat(capsule_depth, 1)
+    pairs = torch.cat(capsule_pair, 0)
+    worst, which = depth.max(-1)
+    fingers_bad = worst > s.finger_tol
+    pair = torch.where(fingers_bad[:, None], pairs[which], torch.full_like(pairs[which], -1))
+    kin_bad = kin_fail.flatten(1).any(-1)
+
+    # --- dynamic test (Eqs. 4–8), float64, hand and table contacts together ----------------------------------
+    K = c_mask.shape[1]
+    E = problem.env.mask.shape[1]
+    f64 = torch.float64
+    com = problem.com[t].to(f64)
+    env_on = problem.env.mask[t]
+    pts = torch.cat([c_point.to(f64), problem.env.points[t].to(f64)], 1) - com[:, None]
+    nrm = torch.cat([c_normal.to(f64), problem.env.normal.to(f64).expand(N, E, 3)], 1)
+    mu = torch.cat([torch.full((N, K), problem.friction, dtype=f64, device=device),
+                    torch.full((N, E), problem.env_friction, dtype=f64, device=device)], 1)
+    w = torch.cat([torch.cat(link_weight, 1).to(f64), torch.full((N, E), s.env_weight, dtype=f64, device=device)], 1)
+    # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
+    slide_world = _rotate(T_obj[:, None, None], guides.slide).to(f64)                   # (N, H, F, 3)
+    hand_slide = torch.zeros(N, K, 3, dtype=f64, device=device)
+    for h in range(H):
+        L = problem.hands[h].num_links
+        onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(f64) * guides.active[:, h, :, None].to(f64)
+        hand_slide[:, h * L:(h + 1) * L] = -torch.einsum("nfl,nfc->nlc", onehot, slide_world[:, h])
+    env_slide = problem.env.sliding_velocity[t].to(f64)
+    env_slide = env_slide / env_slide.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    mask = torch.cat([c_mask, env_on], 1)
+    run = ~kin_bad & ~fingers_bad
+    if not dynamics:
+        run = torch.zeros_like(run)
+    res = solve_friction_cone(pts, nrm, mu, problem.wrench[t].to(f64), mask=mask & run[:, None], weights=w,
+                              sliding_dir=torch.cat([hand_slide, env_slide], 1))
+    dyn_ok = res.status == int(SolverStatus.CONVERGED)
+    forces = res.forces.to(dtype) * (run & dyn_ok)[:, None, None].to(dtype)
+    c_force, env_force = forces[:, :K], forces[:, K:]
+    cause = torch.where(kin_bad, CAUSE_KINEMATIC, torch.where(fingers_bad, CAUSE_FINGERS,
+                        torch.where(dyn_ok | (not dynamics), CAUSE_NONE, CAUSE_DYNAMIC)))
+    feasible = cause == CAUSE_NONE
+
+    # --- seeds: the most distal contact of every finger ------------------------------------------------------
+    seeds = _seeds(problem, t, c_mask, c_local, c_point, c_normal, c_force, s)
+    return FrameResult(q=q, feasible=feasible, cause=cause, kin_fail=kin_fail, pair=pair, c_mask=c_mask,
+                       c_local=c_local, c_point=c_point, c_normal=c_normal, c_force=c_force, env_force=env_force,
+                       penetration=penetration, guide_err=guide_err, **seeds)
+
+
+def _seeds(problem, t, c_mask, c_local, c_point, c_normal, c_force, s: NodeTestSettings) -> dict:
+    N = t.shape[0]
+    H, F = problem.H, problem.F
+    device, dtype = c_point.device, c_point.dtype
+    T_inv = problem.object_inv[t]
+    out = {k: [] for k in ("seed_on", "seed_link", "seed_local", "seed_obj", "seed_class", "seed_tdir")}
+    for h in range(H):
+        hand = problem.hands[h]
+        L = hand.num_links
+        fl = hand.finger_links                                                   # (F, 4) proximal -> distal
+        sl = slice(h * L, (h + 1) * L)
+        on = c_mask[:, sl][:, fl.clamp_min(0)] & (fl >= 0)                       # (N, F, 4)
+        depth = torch.arange(fl.shape[1], device=device).expand_as(on)
+        best = torch.where(on, depth, torch.full_like(depth, -1)).amax(-1)      # (N, F)
+        seed_on = best >= 0
+        link = fl.expand(N, F, -1).gather(2, best.clamp_min(0)[..., None]).squeeze(-1).clamp_min(0)   # (N, F)
+        g3 = link[..., None].expand(N, F, 3)
+        local = c_local[:, sl].gather(1, g3)
+        point = c_point[:, sl].gather(1, g3)
+        normal = c_normal[:, sl].gather(1, g3)
+        force = c_force[:, sl].gather(1, g3)
+        fn = (force * normal).sum(-1)
+        ft = force - fn[..., None] * normal
+        ftn = ft.norm(dim=-1)
+        cls = torch.where(fn <= s.zero_force * problem.weight, FORCE_ZERO,
+                          torch.where(ftn >= s.boundary * problem.friction * fn, FORCE_BOUNDARY, FORCE_INSIDE))
+        tdir = _rotate(T_inv[:, None], ft / ftn.clamp_min(1e-12)[..., None])
+        out["seed_on"].append(seed_on)
+        out["seed_link"].append(link)
+        out["seed_local"].append(local)
+        out["seed_obj"].append(_transform(T_inv[:, None], point))
+        out["seed_class"].append(cls)
+        out["seed_tdir"].append(tdir)
+    return {k: torch.stack(v, 1) for k, v in out.items()}

@@ -1,0 +1,194 @@
+"""What the search needs to know about a scene, computed once: hands, SDF, required wrenches, contact patches.
+
+:func:`build_problem` turns a :class:`~torchhand.scene.Scene` into a frozen :class:`SynthesisProblem`:
+
+* the hand models (one per wrist track) and their root poses;
+* the object's SDF grid, its surface samples (object frame) and per-frame poses;
+* the wrench the contacts must produce in every frame (Newton–Euler from finite differences of the object pose:
+  ``F = m (a - g)``, ``tau = I_w alpha + omega x I_w omega`` about the centre of mass, world frame);
+* the object-table contacts (static or sliding, known from the object motion, Ye & Liu §4.3);
+* the contact patches of §4.2's initial case: for every frame and finger, the object-surface samples that lie in
+  the fingertip's reachable volume (a voxelised cloud of fingertip positions over random finger poses, in the
+  wrist frame, dilated by one voxel).
+
+Conventions (:mod:`torchhand.conventions`): metres, seconds, newtons; world z up; poses ``T_world_frame``;
+contact normals point into the object; wrench = (force, torque about the centre of mass), world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from kornia.geometry.conversions import rotation_matrix_to_axis_angle
+
+from ..collision import rigid_inverse
+from ..hand import default_hand
+from ..hand.model import HandModel
+from ..objects import sample_surface
+from ..scene import EnvContacts, Scene, environment_contacts
+from ..sdf import SDFGrid
+
+__all__ = ["SynthesisProblem", "build_problem", "required_wrench", "finger_workspace"]
+
+
+@dataclass(frozen=True, eq=False)
+class SynthesisProblem:
+    """A scene prepared for the search (H hands, F fingers per hand, T frames, S object-surface samples).
+
+    hands:        tuple of H :class:`HandModel` (same link / joint layout), on the working device and dtype
+    sides:        tuple of H side names ("right" / "left")
+    root:         wrist poses ``T_world_hand``, (H, T, 4, 4), world, metres
+    object_pose:  ``T_world_object``, (T, 4, 4); object_inv: its inverse, (T, 4, 4)
+    com:          centre of mass, (T, 3), world, metres
+    wrench:       required net wrench on the object from all contacts, (T, 6): force (N), torque about the COM (N m)
+    sdf:          the object's SDF grid, object frame
+    surface:      object-surface samples, (S, 3), object frame, metres; surface_normal: outward, (S, 3)
+    patch:        whether sample s is in finger f of hand h's reachable volume at frame t, (H, F, T, S) bool
+    env:          object-table contacts (:class:`EnvContacts`, T frames, E slots)
+    env_friction: object-table friction coefficient; friction: hand-object friction coefficient
+    mass:         object mass, kg; weight: m |g|, newtons (the force scale of the checks)
+    fps:          frames per second
+    """
+
+    hands: tuple
+    sides: tuple
+    root: torch.Tensor
+    object_pose: torch.Tensor
+    object_inv: torch.Tensor
+    com: torch.Tensor
+    wrench: torch.Tensor
+    sdf: SDFGrid
+    surface: torch.Tensor
+    surface_normal: torch.Tensor
+    patch: torch.Tensor
+    env: EnvContacts
+    env_friction: float
+    friction: float
+    mass: float
+    weight: float
+    fps: float
+
+    @property
+    def T(self) -> int:
+        return int(self.object_pose.shape[0])
+
+    @property
+    def H(self) -> int:
+        return len(self.hands)
+
+    @property
+    def F(self) -> int:
+        return self.hands[0].num_fingers
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.object_pose.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.object_pose.device
+
+
+def required_wrench(object_pose: torch.Tensor, com_local: torch.Tensor, mass: float, inertia: torch.Tensor,
+                    gravity: torch.Tensor, fps: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Newton–Euler wrench the contacts must apply to follow the object trajectory.
+
+    object_pose: (T, 4, 4) world; com_local: (3,) object frame; inertia: (3, 3) about the COM, object axes;
+    gravity: (3,) m/s^2. Velocities and accelerations are central finite differences (one-sided at the ends,
+    zero for a single frame); angular velocity from the rotation log (kornia) of consecutive frames.
+    Returns (com (T, 3) world, wrench (T, 6)).
+    """
+    T = object_pose.shape[0]
+    R = object_pose[:, :3, :3]
+    com = (R @ com_local[:, None]).squeeze(-1) + object_pose[:, :3, 3]
+    acc = torch.zeros_like(com)
+    omega = torch.zeros_like(com)
+    alpha = torch.zeros_like(com)
+    if T >= 3:
+        acc[1:-1] = (com[2:] - 2 * com[1:-1] + com[:-2]) * fps * fps
+        acc[0], acc[-1] = acc[1], acc[-2]
+    if T >= 2:
+        # omega at the midpoints t + 1/2 from R_{t+1} R_t^T (world-frame increments), then averaged to frames
+        dR = R[1:] @ R[:-1].transpose(-1, -2)
+        w_mid = rotation_matrix_to_axis_angle(dR.float() if dR.dtype == torch.float16 else dR) * fps
+        omega[1:-1] = 0.5 * (w_mid[1:] + w_mid[:-1])
+        omega[0], omega[-1] = w_mid[0], w_mid[-1]
+        alpha_mid = (w_mid[1:] - w_mid[:-1]) * fps if T >= 3 else w_mid[:0]
+        if T >= 3:
+            alpha[1:-1] = alpha_mid
+            alpha[0], alpha[-1] = alpha[1], alpha[-2]
+    I_w = R @ inertia @ R.transpose(-1, -2)
+    Iw = (I_w @ omega[..., None]).squeeze(-1)
+    torque = (I_w @ alpha[..., None]).squeeze(-1) + torch.cross(omega, Iw, dim=-1)
+    force = mass * (acc - gravity)
+    return com, torch.cat([force, torque], -1)
+
+
+def finger_workspace(hand: HandModel, generator: torch.Generator, samples: int = 4096,
+                     voxel: float = 0.006) -> list[torch.Tensor]:
+    """Voxelised reachable volume of each fingertip pad in the wrist frame.
+
+    Random finger poses within the joint limits (uniform, from ``generator``), fingertip pads by FK with the
+    identity root. Returns, per finger, the occupied voxel keys (int64 codes of (i, j, k) at ``voxel`` metres,
+    dilated by one voxel), sorted, for :func:`_in_workspace`.
+    """
+    q = hand.random_q(samples, generator)
+    T = hand.forward_kinematics(q)
+    tips = (T[:, hand.distal_link, :3, :3] @ hand.fingertip[None, :, :, None]).squeeze(-1) \
+        + T[:, hand.distal_link, :3, 3]                                        # (N, F, 3)
+    out = []
+    offsets = torch.stack(torch.meshgrid(*(torch.arange(-1, 2),) * 3, indexing="ij"), -1).reshape(-1, 3)
+    for f in range(hand.num_fingers):
+        ijk = torch.floor(tips[:, f] / voxel).long()
+        ijk = (ijk[:, None, :] + offsets[None]).reshape(-1, 3)
+        out.append(torch.unique(_code(ijk)))
+    return out
+
+
+def _code(ijk: torch.Tensor) -> torch.Tensor:
+    """(…, 3) int voxel indices -> (…,) int64 codes (indices within +-2^19)."""
+    b = ijk + (1 << 19)
+    return (b[..., 0] << 40) | (b[..., 1] << 20) | b[..., 2]
+
+
+def _in_workspace(points_hand: torch.Tensor, codes: torch.Tensor, voxel: float) -> torch.Tensor:
+    """Whether points (…, 3) in the wrist frame fall in the voxel set ``codes`` (sorted). Returns (…,) bool."""
+    c = _code(torch.floor(points_hand / voxel).long())
+    pos = torch.searchsorted(codes, c.reshape(-1)).clamp_max(codes.numel() - 1)
+    return (codes[pos] == c.reshape(-1)).reshape(c.shape)
+
+
+def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dtype=torch.float32,
+                  voxel_size: float = 0.0015, surface_samples: int = 3000, progress: bool = False
+                  ) -> SynthesisProblem:
+    """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU)."""
+    hands = tuple(default_hand(track.side, track.length).to(device, dtype) for track in scene.hands)
+    root = torch.stack([track.wrist_pose for track in scene.hands]).to(device, dtype)
+    pose64 = scene.object_pose.double()
+    obj = scene.object
+    com64, wrench64 = required_wrench(pose64, torch.as_tensor(obj.com, dtype=torch.float64), obj.mass,
+                                      torch.as_tensor(obj.inertia, dtype=torch.float64), scene.gravity.double(),
+                                      scene.fps)
+    sdf = SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(device, dtype)
+    pts, nrm = sample_surface(obj.mesh, surface_samples, generator, dtype=torch.float64)
+    # points in the wrist frame of every hand and frame: (H, T, S, 3)
+    world = torch.einsum("tij,sj->tsi", pose64[:, :3, :3], pts) + pose64[:, None, :3, 3]
+    patches = []
+    for h, track in enumerate(scene.hands):
+        inv = rigid_inverse(track.wrist_pose.double())
+        local = torch.einsum("tij,tsj->tsi", inv[:, :3, :3], world) + inv[:, None, :3, 3]
+        hand64 = default_hand(track.side, track.length)
+        codes = finger_workspace(hand64, generator)
+        patches.append(torch.stack([_in_workspace(local, c, 0.006) for c in codes]))   # (F, T, S)
+    env = environment_contacts(scene)
+    return SynthesisProblem(
+        hands=hands, sides=tuple(t.side for t in scene.hands), root=root,
+        object_pose=pose64.to(device, dtype), object_inv=rigid_inverse(pose64).to(device, dtype),
+        com=com64.to(device, dtype), wrench=wrench64.to(device, dtype), sdf=sdf,
+        surface=pts.to(device, dtype), surface_normal=nrm.to(device, dtype),
+        patch=torch.stack(patches).to(device),
+        env=EnvContacts(env.points.to(device, dtype), env.mask.to(device), env.sliding_velocity.to(device, dtype),
+                        env.support_index.to(device), env.normal.to(device, dtype)),
+        env_friction=float(scene.environment.friction), friction=float(scene.friction), mass=float(obj.mass),
+        weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps))

@@ -1,0 +1,476 @@
+"""Randomized depth-first search over contact points (Ye & Liu 2012, Algorithms 1–2 and §5), many trees at once.
+
+Every tree is a depth-first traversal whose nodes are windows of frames (sparse exploration, §5): a node keeps one
+manipulation strategy per finger (static, sliding, relocating, free) for a window whose length is drawn uniformly
+from ``[ceil(W/2), ceil(3W/2)]`` with ``W = T / epsilon``, so a path has about ``epsilon`` nodes whatever the clip
+length. Expanding a node draws ``candidates`` guiding configurations from the contact-dynamics sampling rules of
+§4.2 (force inside the cone: static; on its boundary: static or slide along the tangential force; zero: static
+or relocate to a neighbouring point; free fingers may establish contact on their pruned patch samples) and tests
+them frame by frame; the candidates of all trees form one batch per frame (:func:`~.node_test.test_frame`).
+
+Batched reading of Algorithm 2: the ``candidates`` siblings of an expansion are tested together; the first
+feasible one in random order becomes the child (PickOneNode), the other feasible ones are kept and are the next
+children when the search backtracks to this node, chosen most different from the explored children (§5,
+diversity). A node gets 1 or 2 children (probability 1/2 each: "branch once in every two chances") and at most
+``max_expansions`` expansions (maxBranchFactor); after a tree has produced 2 or 3 solutions from one initial sample
+(mean 2.5, §5) it restarts from a new one. Informed backtracking (§5): after a failed expansion the next one
+resamples only the finger that failed the kinematic test, one finger of an interpenetrating pair (the sample
+farthest from the other finger), or every finger after a dynamic failure. Each tree draws from its own
+``torch.Generator`` (seeded ``seed + tree``), so a seed reproduces the run.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from .initial import InitialSamples
+from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
+                        FrameResult, Guides, NodeTestSettings, pad_points, test_frame)
+from .problem import SynthesisProblem
+
+__all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
+
+STRATEGIES = ("static", "sliding", "relocating", "mixed")
+_STATIC, _SLIDE, _RELOCATE, _FREE = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """Parameters of the search (Ye & Liu §5). Times in seconds, lengths in metres."""
+
+    epsilon: float = 10.0          # expected number of nodes per path (sparse exploration)
+    trees: int = 16                # trees grown in parallel
+    candidates: int = 8            # guiding configurations tested per expansion
+    max_expansions: int = 4        # expansions of one node before backtracking (maxBranchFactor)
+    strategy: str = "mixed"        # manipulation-strategy preference
+    slide_speed: float = 0.03      # how fast a sliding contact moves on the surface, m/s
+    relocate_radius: float = 0.03  # neighbourhood of a relocation, metres
+    establish: float = 0.6         # probability that a free finger with patch samples establishes contact
+    free_weight: float = 3.0       # contact-force preference: weight of fingers that applied no force before
+    solutions: int = 10            # stop after this many solutions
+    time_budget: float = 120.0     # stop after this many seconds
+
+
+@dataclass
+class SearchStats:
+    """Counters of one run (Ye & Liu Table 1 and more)."""
+
+    nodes_tested: int = 0            # frame tests (kinematic + dynamic)
+    dead_ends: int = 0               # infeasible frames met
+    rejections: dict = field(default_factory=lambda: {"kinematic": 0, "finger_finger": 0, "dynamic": 0})
+    success_frames: int = 0
+    time_s: float = 0.0
+    restarts: int = 0
+    deepest_frame: int = 0           # the furthest frame any path reached
+    fail_frames: list = field(default_factory=list)   # frame of every dead end (for the report's histogram)
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One feasible path: per frame (T) the node-test outputs and the guiding configuration.
+
+    q (T, H, D); c_mask (T, K); c_local, c_point, c_normal, c_force (T, K, 3); env_force (T, E, 3);
+    guiding (T, H, F) bool; guide_obj (T, H, F, 3) object frame; guide_link (T, H, F); guide_local (T, H, F, 3);
+    tree: the tree that found it
+    """
+
+    q: torch.Tensor
+    c_mask: torch.Tensor
+    c_local: torch.Tensor
+    c_point: torch.Tensor
+    c_normal: torch.Tensor
+    c_force: torch.Tensor
+    env_force: torch.Tensor
+    guiding: torch.Tensor
+    guide_obj: torch.Tensor
+    guide_link: torch.Tensor
+    guide_local: torch.Tensor
+    tree: int
+
+
+_KEEP = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "env_force", "seed_on", "seed_link",
+         "seed_local", "seed_obj", "seed_class", "seed_tdir")
+
+
+class _Node:
+    """A window of frames on a tree's current path (orchestration state, not a tensor type)."""
+
+    __slots__ = ("t0", "t1", "frames", "guides", "children", "target", "expansions", "pending", "explored",
+                 "fail", "template", "uid")
+
+    def __init__(self, t0, t1, frames, guides, target, uid):
+        self.t0, self.t1 = t0, t1
+        self.frames = frames            # dict of stacked per-frame tensors (w, ...) or None for the root
+        self.guides = guides            # per frame guiding: dict (w, ...) or None
+        self.children = 0
+        self.target = target            # children wanted (1 or 2)
+        self.expansions = 0
+        self.pending = []               # feasible siblings not explored yet: (frames, guides, end_obj)
+        self.explored = []              # guiding points (H, F, 3) at the window end of explored children
+        self.fail = None                # (cause, fingers) of the last failed expansion
+        self.template = None            # strategy plan of the last failed candidate
+        self.uid = uid
+
+
+class _Tree:
+    def __init__(self, index: int, seed: int):
+        self.index = index
+        self.gen = torch.Generator().manual_seed(seed)
+        self.stack: list[_Node] = []
+        self.cap = 0
+        self.found = 0
+
+
+def _rand(gen) -> float:
+    return float(torch.rand((), generator=gen))
+
+
+def _randint(gen, n: int) -> int:
+    return int(torch.randint(n, (), generator=gen))
+
+
+class _Search:
+    def __init__(self, problem: SynthesisProblem, init: InitialSamples, s: SearchSettings, ns: NodeTestSettings,
+                 seed: int):
+        if s.strategy not in STRATEGIES:
+            raise ValueError(f"strategy: expected one of {STRATEGIES}, got {s.strategy!r}")
+        self.p, self.init, self.s, self.ns = problem, init, s, ns
+        self.H, self.F = problem.H, problem.F
+        self.T = problem.T
+        self.window = max(1.0, self.T / max(s.epsilon, 1e-9))
+        self.trees = [_Tree(i, seed * 1000 + i) for i in range(s.trees)]
+        self.stats = SearchStats()
+        self.solutions: list[tuple[int, list[_Node]]] = []
+        self.uid = 0
+        self.solution_nodes: set = set()
+        hand = problem.hands[0]
+        self.tip_link = hand.distal_link
+        self.tip_local = pad_points(hand)
+        self.q_rest = torch.stack([h.q_rest for h in problem.hands])            # (H, D)
+
+    # --- tree bookkeeping -------------------------------------------------------------------------------------
+    def _new_uid(self) -> int:
+        self.uid += 1
+        return self.uid
+
+    def _restart(self, tree: _Tree):
+        tree.stack = [_Node(0, 0, None, None, 1, self._new_uid())]
+        tree.cap = 2 + (1 if _rand(tree.gen) < 0.5 else 0)
+        tree.found = 0
+        self.stats.restarts += 1
+
+    def _window(self, tree: _Tree, t0: int) -> int:
+        lo, hi = math.ceil(self.window / 2), math.ceil(1.5 * self.window)
+        w = lo + _randint(tree.gen, hi - lo + 1)
+        return max(1, min(w, self.T - t0))
+
+    # --- candidate generation (§4.2 sampling rules, §5 preferences and informed backtracking) ----------------
+    def _last(self, node: _Node, key: str):
+        return None if node.frames is None else node.frames[key][-1]
+
+    def _choices(self, tree: _Tree, node: _Node, h: int, f: int) -> int:
+        """Strategy of finger (h, f) for the next window from its seed's force state."""
+        g, pref = tree.gen, self.s.strategy
+        on = node.frames is not None and bool(node.frames["seed_on"][-1, h, f])
+        if not on:
+            return _FREE
+        cls = int(node.frames["seed_class"][-1, h, f])
+        if cls == FORCE_INSIDE:
+            return _STATIC
+        alt = _SLIDE if cls == FORCE_BOUNDARY else _RELOCATE
+        if pref == "static":
+            return _STATIC
+        if pref == "sliding":
+            return _SLIDE if alt == _SLIDE else (_STATIC if _rand(g) < 0.5 else _RELOCATE)
+        if pref == "relocating":
+            return _RELOCATE if alt == _RELOCATE else (_STATIC if _rand(g) < 0.5 else _SLIDE)
+        return alt if _rand(g) < 0.5 else _STATIC
+
+    def _new_point(self, tree: _Tree, t: int, h: int, f: int, near=None, away=None) -> int:
+        """A pruned patch sample of finger (h, f) at frame t: near ``near`` (object frame) if given, farthest from
+        ``away`` among a few draws if given. -1 if there is none."""
+        idx = self.init.samples(t, h, f)
+        if idx.numel() == 0:
+            return -1
+        pts = self.p.surface[idx]
+        if near is not None:
+            close = idx[(pts - near).norm(dim=-1) <= self.s.relocate_radius]
+            far_enough = close[(self.p.surface[close] - near).norm(dim=-1) > 0.005]
+            idx = far_enough if far_enough.numel() else (close if close.numel() else idx)
+        if away is not None:
+            draws = idx[torch.randint(idx.numel(), (4,), generator=tree.gen)]
+            d = (self.p.surface[draws] - away).norm(dim=-1)
+            return int(draws[int(d.argmax())])
+        return int(idx[_randint(tree.gen, idx.numel())])
+
+    def _plan(self, tree: _Tree, node: _Node, w: int, resample=None, away=None) -> list:
+        """Per finger (kind, sample index or -1, first guided frame of the window) for a window of w frames
+        starting after ``node``. A free finger that establishes contact does so at a uniformly drawn frame of the
+        window (its initial frame, §4.2), on a pruned patch sample of that frame; a relocating finger lifts off
+        for the first third of the window."""
+        t0 = node.t1
+        plan = []
+        for h in range(self.H):
+            for f in range(self.F):
+                gi = h * self.F + f
+                if node.template is not None and resample is not None and gi not in resample:
+                    plan.append(node.template[gi])
+                    continue
+                kind = self._choices(tree, node, h, f)
+                if gi in (resample or ()) and node.template is not None and node.template[gi][0] == kind \
+                        and kind == _STATIC and _rand(tree.gen) < 0.7:
+                    kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
+                sample, land = -1, 0
+                if kind == _FREE and _rand(tree.gen) < self.s.establish:
+                    land = _randint(tree.gen, w)
+                    sample = self._new_point(tree, t0 + land, h, f, away=away.get(gi) if away else None)
+                    kind = _RELOCATE if sample >= 0 else _FREE
+                elif kind == _RELOCATE and _rand(tree.gen) < 0.4:
+                    kind = _FREE                       # release: the finger leaves the object for this window
+                elif kind == _RELOCATE:
+                    near = node.frames["seed_obj"][-1, h, f]
+                    sample = self._new_point(tree, t0, h, f, near=near, away=away.get(gi) if away else None)
+                    land = max(1, w // 3)
+                    if sample < 0:
+                        kind = _FREE
+                plan.append((kind, sample, land))
+        return plan
+
+    def _informed(self, tree: _Tree, node: _Node, w: int) -> list:
+        """Plans of one expansion: informed by the last failure where there is one, fresh otherwise."""
+        plans = []
+        for i in range(self.s.candidates):
+            if node.fail is None or i >= self.s.candidates // 2 + 1:
+                plans.append(self._plan(tree, node, w))
+                continue
+            cause, fingers = node.fail
+            if cause == CAUSE_KINEMATIC:
+                plans.append(self._plan(tree, node, w, resample=set(fingers)))
+            elif cause == CAUSE_FINGERS:
+                a, b = fingers
+                mover, other = (a, b) if _rand(tree.gen) < 0.5 else (b, a)
+                plan_o = node.template[other]
+                away = None
+                if plan_o[1] >= 0:
+                    away = {mover: self.p.surface[plan_o[1]]}
+                elif node.frames is not None:
+                    ho, fo = divmod(other, self.F)
+                    away = {mover: node.frames["seed_obj"][-1, ho, fo]}
+                plans.append(self._plan(tree, node, w, resample={mover}, away=away))
+            else:
+                plans.append(self._plan(tree, node, w))
+        return plans
+
+    # --- one batched expansion of every tree ------------------------------------------------------------------
+    def _expand(self, jobs):
+        """jobs: list of (tree, node, plans, w). Tests every plan over its window; returns per job the list of
+        feasible (frames, guides) and the failure summary."""
+        p, H, F = self.p, self.H, self.F
+        device, dtype = p.device, p.dtype
+        # flatten candidates
+        cand = []
+        for j, (tree, node, plans, w) in enumerate(jobs):
+            for plan in plans:
+                cand.append((j, node, plan, w))
+        N = len(cand)
+        t0 = torch.tensor([c[1].t1 for c in cand], device=device)
+        w = torch.tensor([c[3] for c in cand], device=device)
+        active = torch.zeros(N, H, F, dtype=torch.bool, device=device)
+        link = self.tip_link.expand(N, H, F).clone()
+        local = self.tip_local.expand(N, H, F, 3).clone()
+        obj = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
+        slide = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
+        land = torch.zeros(N, H, F, dtype=torch.long, device=device)       # first guided frame of a relocation
+        q_prev = self.q_rest.expand(N, H, -1).clone()
+        first = torch.zeros(N, dtype=torch.bool, device=device)
+        weights = torch.ones(N, H, F, dtype=dtype, device=device)
+        for i, (j, node, plan, wi) in enumerate(cand):
+            if node.frames is None:
+                first[i] = True
+            else:
+                q_prev[i] = node.frames["q"][-1]
+                zero = node.frames["seed_class"][-1] == FORCE_ZERO
+                if self.s.strategy in ("relocating", "mixed"):
+                    weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
+                                             torch.full_like(weights[i], self.s.free_weight), weights[i])
+            for gi, (kind, sample, land_k) in enumerate(plan):
+                h, f = divmod(gi, F)
+                if kind in (_STATIC, _SLIDE):
+                    active[i, h, f] = True
+                    link[i, h, f] = node.frames["seed_link"][-1, h, f]
+                    local[i, h, f] = node.frames["seed_local"][-1, h, f]
+                    obj[i, h, f] = node.frames["seed_obj"][-1, h, f]
+                    if kind == _SLIDE:
+                        slide[i, h, f] = node.frames["seed_tdir"][-1, h, f]
+                elif kind == _RELOCATE and sample >= 0:
+                    active[i, h, f] = True
+                    obj[i, h, f] = p.surface[sample]
+                    land[i, h, f] = min(land_k, wi - 1)
+        step = self.s.slide_speed / p.fps
+        alive = torch.ones(N, dtype=torch.bool, device=device)
+        frames = {k: [] for k in _KEEP}
+        g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
+        fail_cause = torch.zeros(N, dtype=torch.long, device=device)
+        fail_fingers = [None] * N
+        wmax = int(w.max())
+        idx_all = torch.arange(N, device=device)
+        for k in range(wmax):
+            run = alive & (k < w)
+            sel = run.nonzero().squeeze(-1)
+            if sel.numel() == 0:
+                break
+            if k > 0:
+                # sliding contacts advance along the surface, re-projected with the SDF
+                moving = slide[sel].norm(dim=-1, keepdim=True) > 0
+                pnew = obj[sel] + step * slide[sel]
+                sd, grad = p.sdf.query_with_grad(pnew.reshape(1, -1, 3))
+                n = grad.reshape(pnew.shape) / grad.reshape(pnew.shape).norm(dim=-1, keepdim=True).clamp_min(1e-9)
+                pnew = pnew - sd.reshape(pnew.shape[:-1])[..., None] * n
+                sdir = slide[sel] - (slide[sel] * n).sum(-1, keepdim=True) * n
+                sdir = sdir / sdir.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+                obj[sel] = torch.where(moving, pnew, obj[sel])
+                slide[sel] = torch.where(moving, sdir, slide[sel])
+            act_k = active[sel] & (land[sel] <= k)
+            guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
+            res = test_frame(p, t0[sel] + k, q_prev[sel], first[sel] & (k == 0), guides, weights[sel],
+                             settings=self.ns)
+            self.stats.nodes_tested += int(sel.numel())
+            ok = res.feasible
+            bad = sel[~ok]
+            self.stats.dead_ends += int(bad.numel())
+            for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
+                                   (CAUSE_DYNAMIC, "dynamic")):
+                self.stats.rejections[name] += int((res.cause == cause_id).sum())
+            fail_cause[bad] = res.cause[~ok]
+            for r in (~ok).nonzero().squeeze(-1).tolist():
+                gi = sel[r].item()
+                if res.cause[r] == CAUSE_KINEMATIC:
+                    fail_fingers[gi] = res.kin_fail[r].flatten().nonzero().squeeze(-1).tolist()
+                elif res.cause[r] == CAUSE_FINGERS:
+                    fail_fingers[gi] = res.pair[r].tolist()
+            alive[bad] = False
+            self.stats.fail_frames.extend((t0[bad] + k).tolist())
+            q_prev[sel] = res.q
+            # store this frame's outputs for every candidate (rows of the ones not run stay unused)
+            for key in _KEEP:
+                full = getattr(res, key)
+                buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=device)
+                buf[sel] = full
+                frames[key].append(buf)
+            gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
+            gl[sel] = act_k
+            g_frames["guiding"].append(gl)
+            g_frames["guide_obj"].append(obj.clone())
+            g_frames["guide_link"].append(link.clone())
+            g_frames["guide_local"].append(local.clone())
+        # regroup per job
+        out = [([], None) for _ in jobs]
+        results = []
+        for j in range(len(jobs)):
+            results.append({"feasible": [], "fail": None, "template": None})
+        for i, (j, node, plan, wi) in enumerate(cand):
+            if bool(alive[i]):
+                fr = {key: torch.stack([frames[key][k][i] for k in range(wi)]) for key in _KEEP}
+                gd = {key: torch.stack([g_frames[key][k][i] for k in range(wi)]) for key in g_frames}
+                results[j]["feasible"].append((fr, gd))
+            elif results[j]["fail"] is None:
+                results[j]["fail"] = (int(fail_cause[i]), fail_fingers[i] or [])
+                results[j]["template"] = plan
+        del out, idx_all
+        return results
+
+    # --- main loop --------------------------------------------------------------------------------------------
+    def run(self, progress=None) -> list[Solution]:
+        s = self.s
+        start = time.perf_counter()
+        for tree in self.trees:
+            self._restart(tree)
+        while len(self.solutions) < s.solutions and time.perf_counter() - start < s.time_budget:
+            jobs = []
+            for tree in self.trees:
+                node = self._frontier(tree)
+                if node is None:
+                    continue
+                w = self._window(tree, node.t1)
+                jobs.append((tree, node, self._informed(tree, node, w), w))
+            if not jobs:
+                continue
+            results = self._expand(jobs)
+            for (tree, node, plans, w), res in zip(jobs, results):
+                node.expansions += 1
+                if res["feasible"]:
+                    order = torch.randperm(len(res["feasible"]), generator=tree.gen).tolist()
+                    feas = [res["feasible"][o] for o in order]
+                    self._push(tree, node, feas[0])
+                    node.pending.extend(feas[1:])
+                else:
+                    node.fail, node.template = res["fail"], res["template"]
+            self.stats.time_s = time.perf_counter() - start
+            if progress is not None:
+                progress(self)
+        self.stats.time_s = time.perf_counter() - start
+        self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes_list())
+        return [self._solution(tree_i, path) for tree_i, path in self.solutions]
+
+    def solution_nodes_list(self):
+        return list(self.solution_nodes)
+
+    def _frontier(self, tree: _Tree):
+        """The node this tree expands next, after backtracking and consuming pending siblings; None if it
+        pushed a pending sibling instead (no test needed this round)."""
+        while True:
+            if not tree.stack or tree.found >= tree.cap:
+                self._restart(tree)
+            node = tree.stack[-1]
+            if node.t1 >= self.T:                      # a full path: record it, then backtrack
+                path = list(tree.stack[1:])
+                self.solutions.append((tree.index, path))
+                self.solution_nodes.update(path)
+                tree.found += 1
+                tree.stack.pop()
+                continue
+            if node.children >= node.target or node.expansions >= self.s.max_expansions:
+                tree.stack.pop()                       # backtrack
+                continue
+            if node.pending and node.children > 0:
+                # diversity: the pending sibling most different from the explored children
+                ends = [fr[1]["guide_obj"][-1] * fr[1]["guiding"][-1][..., None] for fr in node.pending]
+                score = [sum(float((e - x).norm(dim=-1).sum()) for x in node.explored) for e in ends]
+                best = max(range(len(ends)), key=lambda i: score[i])
+                self._push(tree, node, node.pending.pop(best))
+                return None
+            return node
+
+    def _push(self, tree: _Tree, node: _Node, feasible):
+        frames, guides = feasible
+        w = frames["q"].shape[0]
+        node.children += 1
+        node.explored.append(guides["guide_obj"][-1] * guides["guiding"][-1][..., None])
+        target = 1 if _rand(tree.gen) < 0.5 else 2
+        tree.stack.append(_Node(node.t1, node.t1 + w, frames, guides, target, self._new_uid()))
+        self.stats.deepest_frame = max(self.stats.deepest_frame, node.t1 + w)
+
+    def _solution(self, tree_index: int, path: list[_Node]) -> Solution:
+        cat = {k: torch.cat([n.frames[k] for n in path]) for k in _KEEP}
+        g = {k: torch.cat([n.guides[k] for n in path]) for k in path[0].guides}
+        return Solution(q=cat["q"], c_mask=cat["c_mask"], c_local=cat["c_local"], c_point=cat["c_point"],
+                        c_normal=cat["c_normal"], c_force=cat["c_force"], env_force=cat["env_force"],
+                        guiding=g["guiding"], guide_obj=g["guide_obj"], guide_link=g["guide_link"],
+                        guide_local=g["guide_local"], tree=tree_index)
+
+
+def search(problem: SynthesisProblem, init: InitialSamples, settings: SearchSettings = SearchSettings(), *,
+           node_settings: NodeTestSettings = NodeTestSettings(), seed: int = 0, progress=None
+           ) -> tuple[list[Solution], SearchStats]:
+    """Run the search (see the module docstring). Returns the solutions in the order found and the counters.
+
+    progress: optional callable(search) after every batched expansion (it can read ``search.stats`` and
+    ``len(search.solutions)``).
+    """
+    runner = _Search(problem, init, settings, node_settings, seed)
+    sols = runner.run(progress)
+    return sols, runner.stats
