@@ -49,7 +49,7 @@ class SearchSettings:
     strategy: str = "mixed"        # manipulation-strategy preference
     slide_speed: float = 0.03      # how fast a sliding contact moves on the surface, m/s
     relocate_radius: float = 0.03  # neighbourhood of a relocation, metres
-    establish: float = 0.6         # probability that a free finger with patch samples establishes contact
+    establish: float = 0.35        # probability that a free finger with patch samples establishes contact
     free_weight: float = 3.0       # contact-force preference: weight of fingers that applied no force before
     solutions: int = 10            # stop after this many solutions
     time_budget: float = 120.0     # stop after this many seconds
@@ -207,7 +207,8 @@ class _Search:
             return int(draws[int(d.argmax())])
         return int(idx[_randint(tree.gen, idx.numel())])
 
-    def _plan(self, tree: _Tree, node: _Node, w: int, resample=None, away=None) -> list:
+    def _plan(self, tree: _Tree, node: _Node, w: int, resample=None, away=None, establish=None,
+              land_max=None) -> list:
         """Per finger (kind, sample index or -1, first guided frame of the window) for a window of w frames
         starting after ``node``. A free finger that establishes contact does so at a uniformly drawn frame of the
         window (its initial frame, §4.2), on a pruned patch sample of that frame; a relocating finger lifts off
@@ -225,8 +226,8 @@ class _Search:
                         and kind == _STATIC and _rand(tree.gen) < 0.7:
                     kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
                 sample, land = -1, 0
-                if kind == _FREE and _rand(tree.gen) < self.s.establish:
-                    land = _randint(tree.gen, w)
+                if kind == _FREE and _rand(tree.gen) < (self.s.establish if establish is None else establish):
+                    land = _randint(tree.gen, w if land_max is None else min(w, land_max + 1))
                     sample = self._new_point(tree, t0 + land, h, f, away=away.get(gi) if away else None)
                     kind = _RELOCATE if sample >= 0 else _FREE
                 elif kind == _RELOCATE and _rand(tree.gen) < 0.4:
@@ -247,7 +248,7 @@ class _Search:
             if node.fail is None or i >= self.s.candidates // 2 + 1:
                 plans.append(self._plan(tree, node, w))
                 continue
-            cause, fingers = node.fail
+            cause, fingers, k_fail = node.fail
             if cause == CAUSE_KINEMATIC:
                 plans.append(self._plan(tree, node, w, resample=set(fingers)))
             elif cause == CAUSE_FINGERS:
@@ -262,7 +263,9 @@ class _Search:
                     away = {mover: node.frames["seed_obj"][-1, ho, fo]}
                 plans.append(self._plan(tree, node, w, resample={mover}, away=away))
             else:
-                plans.append(self._plan(tree, node, w))
+                # a dynamic failure: new guiding points for every finger, and free fingers now establish contact
+                # before the frame that failed (more contacts can carry the wrench)
+                plans.append(self._plan(tree, node, w, establish=0.9, land_max=k_fail))
         return plans
 
     # --- one batched expansion of every tree ------------------------------------------------------------------
@@ -285,6 +288,7 @@ class _Search:
         obj = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
         slide = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
         land = torch.zeros(N, H, F, dtype=torch.long, device=device)       # first guided frame of a relocation
+        was_on = torch.zeros(N, H, F, dtype=torch.bool, device=device)     # finger touched at the previous frame
         q_prev = self.q_rest.expand(N, H, -1).clone()
         first = torch.zeros(N, dtype=torch.bool, device=device)
         weights = torch.ones(N, H, F, dtype=dtype, device=device)
@@ -293,6 +297,7 @@ class _Search:
                 first[i] = True
             else:
                 q_prev[i] = node.frames["q"][-1]
+                was_on[i] = node.frames["seed_on"][-1]
                 zero = node.frames["seed_class"][-1] == FORCE_ZERO
                 if self.s.strategy in ("relocating", "mixed"):
                     weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
@@ -315,6 +320,7 @@ class _Search:
         frames = {k: [] for k in _KEEP}
         g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
         fail_cause = torch.zeros(N, dtype=torch.long, device=device)
+        fail_k = torch.zeros(N, dtype=torch.long, device=device)
         fail_fingers = [None] * N
         wmax = int(w.max())
         idx_all = torch.arange(N, device=device)
@@ -336,8 +342,9 @@ class _Search:
                 slide[sel] = torch.where(moving, sdir, slide[sel])
             act_k = active[sel] & (land[sel] <= k)
             guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
-            res = test_frame(p, t0[sel] + k, q_prev[sel], first[sel] & (k == 0), guides, weights[sel],
-                             settings=self.ns)
+            lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
+            res = test_frame(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
+                             weights[sel], settings=self.ns)
             self.stats.nodes_tested += int(sel.numel())
             ok = res.feasible
             bad = sel[~ok]
@@ -346,6 +353,7 @@ class _Search:
                                    (CAUSE_DYNAMIC, "dynamic")):
                 self.stats.rejections[name] += int((res.cause == cause_id).sum())
             fail_cause[bad] = res.cause[~ok]
+            fail_k[bad] = k
             for r in (~ok).nonzero().squeeze(-1).tolist():
                 gi = sel[r].item()
                 if res.cause[r] == CAUSE_KINEMATIC:
@@ -378,7 +386,7 @@ class _Search:
                 gd = {key: torch.stack([g_frames[key][k][i] for k in range(wi)]) for key in g_frames}
                 results[j]["feasible"].append((fr, gd))
             elif results[j]["fail"] is None:
-                results[j]["fail"] = (int(fail_cause[i]), fail_fingers[i] or [])
+                results[j]["fail"] = (int(fail_cause[i]), fail_fingers[i] or [], int(fail_k[i]))
                 results[j]["template"] = plan
         del out, idx_all
         return results
