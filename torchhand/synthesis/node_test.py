@@ -34,7 +34,7 @@ from torchhand.kernels.status import SolverStatus
 
 from .problem import SynthesisProblem
 
-__all__ = ["Guides", "NodeTestSettings", "FrameResult", "test_frame", "CAUSE_NONE", "CAUSE_KINEMATIC",
+__all__ = ["Guides", "NodeTestSettings", "FrameResult", "test_frame", "evaluate_poses", "pad_points", "CAUSE_NONE", "CAUSE_KINEMATIC",
            "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
 
 CAUSE_NONE, CAUSE_KINEMATIC, CAUSE_FINGERS, CAUSE_DYNAMIC = 0, 1, 2, 3
@@ -276,22 +276,59 @@ def test_frame(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor,
     """Kinematic and dynamic test of N candidates (see the module docstring).
 
     t: frame of each candidate, (N,) long; q_prev: previous pose, (N, H, D), radians; first: Eq. 3 is not applied,
-    (N,) bool for whole candidates (no previous pose) or (N, H, F) bool per finger (fingers landing on the object); guides: :class:`Guides`; weights: objective weight of each hand contact's
-    finger, (N, H, F) (default 1; the palm's weight is 1); dynamics: False skips the dynamic test (forces zero,
-    feasibility from the kinematic test alone).
+    (N,) bool for whole candidates (no previous pose) or (N, H, F) bool per finger (fingers landing on the
+    object); guides: :class:`Guides`; weights: objective weight of each hand contact's finger, (N, H, F) (default
+    1; the palm's weight is 1); dynamics: False skips the dynamic test (forces zero, feasibility from the
+    kinematic test alone).
     """
-    s = settings
+    kin = [_hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings) for h in range(problem.H)]
+    # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
+    N = t.shape[0]
+    f64 = torch.float64
+    slide_world = _rotate(problem.object_pose[t][:, None, None], guides.slide).to(f64)     # (N, H, F, 3)
+    hand_slide = []
+    for h in range(problem.H):
+        L = problem.hands[h].num_links
+        onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(f64) * guides.active[:, h, :, None].to(f64)
+        hand_slide.append(-torch.einsum("nfl,nfc->nlc", onehot, slide_world[:, h]))
+    return _finish(problem, t, kin, torch.cat(hand_slide, 1), weights, settings, dynamics)
+
+
+def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, hand_slide: torch.Tensor | None = None,
+                   settings: NodeTestSettings = NodeTestSettings()) -> FrameResult:
+    """The contact and dynamic test of given poses, without IK (for reconstructed motion).
+
+    t: (N,) frames; q: (N, H, D) radians; hand_slide: unit direction in which the object's material point slides
+    relative to each hand-contact slot, (N, K, 3) world (zeros = static), default all static.
+    """
+    kin = []
+    for h in range(problem.H):
+        hand = problem.hands[h]
+        poses = hand.forward_kinematics(q[:, h], problem.root[h, t])
+        pen = link_sample_penetration(poses, hand.sample_points, hand.sample_link, problem.object_inv[t],
+                                      problem.sdf.values, problem.sdf.origin, problem.sdf.voxel_size,
+                                      corners=problem.sdf.corners)
+        kin.append((q[:, h], poses, q.new_zeros(t.shape[0], hand.num_fingers), pen))
+    if hand_slide is None:
+        K = sum(hd.num_links for hd in problem.hands)
+        hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
+    return _finish(problem, t, kin, hand_slide.to(torch.float64), None, settings, True)
+
+
+def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: torch.Tensor,
+            weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool) -> FrameResult:
+    """Kinematic verdicts, contact collection and the dynamic test from each hand's (q, poses, guide error,
+    penetration)."""
     H, F = problem.H, problem.F
     N = t.shape[0]
-    dtype, device = q_prev.dtype, q_prev.device
     qs, kin_fail, errs, pens, c_mask, c_local, c_point, c_normal = [], [], [], [], [], [], [], []
     capsule_depth, capsule_pair = [], []
     link_weight = []
-    T_obj = problem.object_pose[t]
     for h in range(H):
         hand = problem.hands[h]
         L = hand.num_links
-        q, poses, err, pen = _hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, s)
+        q, poses, err, pen = kin[h]
+        dtype, device = q.dtype, q.device
         lf = hand.link_finger                                                        # (L,)
         deep = pen.deepest_value                                                     # (N, L)
         too_deep = deep < -s.pen_tol
@@ -342,13 +379,6 @@ def test_frame(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor,
     mu = torch.cat([torch.full((N, K), problem.friction, dtype=f64, device=device),
                     torch.full((N, E), problem.env_friction, dtype=f64, device=device)], 1)
     w = torch.cat([torch.cat(link_weight, 1).to(f64), torch.full((N, E), s.env_weight, dtype=f64, device=device)], 1)
-    # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
-    slide_world = _rotate(T_obj[:, None, None], guides.slide).to(f64)                   # (N, H, F, 3)
-    hand_slide = torch.zeros(N, K, 3, dtype=f64, device=device)
-    for h in range(H):
-        L = problem.hands[h].num_links
-        onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(f64) * guides.active[:, h, :, None].to(f64)
-        hand_slide[:, h * L:(h + 1) * L] = -torch.einsum("nfl,nfc->nlc", onehot, slide_world[:, h])
     env_slide = problem.env.sliding_velocity[t].to(f64)
     env_slide = env_slide / env_slide.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     mask = torch.cat([c_mask, env_on], 1)

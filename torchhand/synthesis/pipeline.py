@@ -1,0 +1,206 @@
+"""Contact-sampling synthesis end to end (Ye & Liu 2012, Algorithm 1): prepare, search, reconstruct, check.
+
+:func:`synthesize` runs the steps as a list of pure stages over typed state:
+
+1. :func:`~.problem.build_problem`: hands, SDF, required wrenches, contact patches;
+2. :func:`~.initial.prune_patches`: the initial case's kinematic pruning;
+3. :func:`~.search.search`: the randomized depth-first search (time budget = what is left of ``time_budget``
+   after preparation, less a reserve for the last stage);
+4. :func:`finalize_solution` for every path found: spacetime reconstruction (§6) of each hand, then the contact and
+   dynamic test of the reconstructed poses with every contact's actual sliding velocity (a contact whose hand
+   point moves on the object faster than ``slide_speed`` is sliding and must have its force on the cone boundary:
+   "solutions that violate sliding friction for non-guiding contacts are excluded", §6). A path whose
+   reconstruction fails this test falls back to its searched poses, checked the same way; a path that fails both
+   is excluded and counted.
+
+Conventions: world frame, metres, newtons, radians; forces are those of the hand on the object.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from ..scene import Scene
+from .initial import prune_patches
+from .node_test import NodeTestSettings, evaluate_poses
+from .problem import SynthesisProblem, build_problem
+from .reconstruct import ContactTrack, reconstruct_motion
+from .search import SearchSettings, SearchStats, Solution, search
+
+__all__ = ["FinalSolution", "SynthesisResult", "synthesize", "finalize_solution"]
+
+
+@dataclass(frozen=True)
+class FinalSolution:
+    """A finished motion (T frames, H hands, K = H L contact slots, E table slots).
+
+    q: (T, H, D) radians; c_mask (T, K) bool; c_local (T, K, 3) link frame; c_point (T, K, 3) world, on the
+    object surface; c_normal (T, K, 3) into the object; c_force (T, K, 3) newtons, hand on object;
+    env_force (T, E, 3); guiding (T, H, F) bool; sliding (T, K) bool: contacts whose hand point slides on the
+    object; reconstructed: whether q is the smoothed motion (False: the searched poses); index: order found
+    """
+
+    q: torch.Tensor
+    c_mask: torch.Tensor
+    c_local: torch.Tensor
+    c_point: torch.Tensor
+    c_normal: torch.Tensor
+    c_force: torch.Tensor
+    env_force: torch.Tensor
+    guiding: torch.Tensor
+    guide_obj: torch.Tensor
+    sliding: torch.Tensor
+    reconstructed: bool
+    index: int
+
+
+@dataclass
+class SynthesisResult:
+    """Everything :func:`synthesize` produced: the problem, the finished solutions and the run's figures."""
+
+    problem: SynthesisProblem
+    solutions: list
+    stats: SearchStats
+    settings: SearchSettings
+    excluded: int = 0
+    timings: dict = field(default_factory=dict)
+
+
+def _points_in_object(problem: SynthesisProblem, q: torch.Tensor, c_local: torch.Tensor, idx: torch.Tensor):
+    """Every contact slot's hand point (``c_local`` (T, K, 3), fixed on its link) posed at frames ``idx`` (T,),
+    in the object frame of those frames, (T, K, 3)."""
+    out = []
+    for h, hand in enumerate(problem.hands):
+        L = hand.num_links
+        poses = hand.forward_kinematics(q[idx, h], problem.root[h, idx])           # (T, L, 4, 4)
+        loc = c_local[:, h * L:(h + 1) * L]
+        out.append((poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3])
+    world = torch.cat(out, 1)
+    inv = problem.object_inv[idx]
+    return (inv[:, None, :3, :3] @ world.unsqueeze(-1)).squeeze(-1) + inv[:, None, :3, 3]
+
+
+def _sliding_dirs(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local, slide_speed: float):
+    """Per frame and contact slot: the unit direction of the object's material point relative to the hand point
+    (world; zero for static contacts) and the sliding flag (T, K). The hand point's velocity relative to the
+    object is a central difference of its object-frame position (one-sided at the ends)."""
+    T = q.shape[0]
+    ar = torch.arange(T, device=q.device)
+    ia, ib = (ar + 1).clamp(0, T - 1), (ar - 1).clamp(0, T - 1)
+    dt = ((ia - ib).clamp_min(1).to(q.dtype) / problem.fps)[:, None, None]
+    v_obj = (_points_in_object(problem, q, c_local, ia) - _points_in_object(problem, q, c_local, ib)) / dt
+    v_world = (problem.object_pose[:, None, :3, :3] @ v_obj.unsqueeze(-1)).squeeze(-1)
+    speed = v_world.norm(dim=-1)
+    sliding = c_mask & (speed > slide_speed)
+    direction = -v_world / speed.clamp_min(1e-12)[..., None]
+    return torch.where(sliding[..., None], direction, torch.zeros_like(direction)), sliding
+
+
+def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local, ns: NodeTestSettings,
+                     slide_speed: float):
+    """Two passes: contacts of the poses, then the dynamic test with the sliding directions those contacts have.
+    Returns (FrameResult of the second pass, sliding flags (T, K))."""
+    T = q.shape[0]
+    t = torch.arange(T, device=q.device)
+    first = evaluate_poses(problem, t, q, settings=ns)
+    dirs, sliding = _sliding_dirs(problem, q, first.c_mask, first.c_local, slide_speed)
+    res = evaluate_poses(problem, t, q, dirs, settings=ns)
+    return res, sliding & res.c_mask
+
+
+def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
+                      slide_speed: float = 0.02, reconstruct: bool = True) -> FinalSolution | None:
+    """Reconstruct and re-check one searched path (see the module docstring); None if neither the smoothed nor the
+    searched poses pass the contact and dynamic test in every frame."""
+    attempts = []
+    if reconstruct:
+        qs = []
+        for h, hand in enumerate(problem.hands):
+            L = hand.num_links
+            sl = slice(h * L, (h + 1) * L)
+            poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
+            link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
+            loc = sol.c_local[:, sl]
+            target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
+            mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
+            contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
+            rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
+                                     object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol)
+            qs.append(rec.q.to(sol.q.dtype))
+        attempts.append((torch.stack(qs, 1), True))
+    attempts.append((sol.q, False))
+    for q, smoothed in attempts:
+        res, sliding = _evaluate_motion(problem, q, sol.c_mask, sol.c_local, ns, slide_speed)
+        if bool(res.feasible.all()):
+            return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point,
+                                 c_normal=res.c_normal, c_force=res.c_force, env_force=res.env_force,
+                                 guiding=sol.guiding, guide_obj=sol.guide_obj, sliding=sliding,
+                                 reconstructed=smoothed, index=index)
+    return None
+
+
+def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0, seed: int = 0,
+               epsilon: float = 10.0, strategy: str = "mixed", device="cpu", dtype=torch.float32,
+               trees: int = 16, candidates: int = 16, reconstruct: bool = True,
+               node_settings: NodeTestSettings = NodeTestSettings(), progress=None) -> SynthesisResult:
+    """Find up to ``solutions`` finger motions for ``scene`` within ``time_budget`` seconds (everything included).
+
+    progress: optional callable(stage: str, info: dict) called at each stage and after every search round
+    (info has nodes_tested, solutions, dead_ends, elapsed, budget).
+    """
+    t_start = time.perf_counter()
+    gen = torch.Generator().manual_seed(int(seed))
+
+    def report(stage, **info):
+        if progress is not None:
+            progress(stage, dict(info, elapsed=time.perf_counter() - t_start, budget=time_budget))
+
+    report("prepare")
+    problem = build_problem(scene, gen, device=device, dtype=dtype)
+    report("prune")
+    init = prune_patches(problem, gen, settings=node_settings)
+    t_prep = time.perf_counter() - t_start
+    reserve = min(0.25 * time_budget, 1.5 * solutions)
+    settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
+                              solutions=solutions, time_budget=max(1.0, time_budget - t_prep - reserve))
+
+    def on_round(s):
+        report("search", nodes_tested=s.stats.nodes_tested, solutions=len(s.solutions),
+               dead_ends=s.stats.dead_ends)
+
+    paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round)
+    t_search = time.perf_counter() - t_start - t_prep
+    finals, excluded = [], 0
+    for i, path in enumerate(paths):
+        report("reconstruct", solution=i, of=len(paths))
+        fin = finalize_solution(problem, path, len(finals), ns=node_settings, reconstruct=reconstruct)
+        if fin is None:
+            excluded += 1
+        else:
+            finals.append(fin)
+    t_total = time.perf_counter() - t_start
+    return SynthesisResult(problem=problem, solutions=finals, stats=stats, settings=settings, excluded=excluded,
+                           timings={"prepare_s": t_prep, "search_s": t_search,
+                                    "reconstruct_s": t_total - t_prep - t_search, "total_s": t_total})
+
+
+def diversity(solutions: list) -> float:
+    """Mean pairwise distance between the guiding-point trajectories of the solutions: the mean over frames and
+    fingers of |p_a - p_b| (object frame, metres), a finger counted where either solution guides it (a missing
+    guide counts as the object's origin). NaN with fewer than two solutions."""
+    if len(solutions) < 2:
+        return math.nan
+    pts = [s.guide_obj * s.guiding[..., None] for s in solutions]
+    on = [s.guiding for s in solutions]
+    total, count = 0.0, 0
+    for a in range(len(pts)):
+        for b in range(a + 1, len(pts)):
+            either = on[a] | on[b]
+            d = (pts[a] - pts[b]).norm(dim=-1)
+            total += float(d[either].mean()) if bool(either.any()) else 0.0
+            count += 1
+    return total / count
