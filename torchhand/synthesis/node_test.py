@@ -145,7 +145,7 @@ def pad_points(hand) -> torch.Tensor:
     return axis + r[:, None] * d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
-def _axis_points(hand, per_link: int = 5):
+def _axis_points(hand, per_link: int = 4):
     """Points along the capsule axis of every finger link: (link (P,) long, local (P, 3), radius (P,))."""
     links = hand.finger_links[hand.finger_links >= 0]
     u = torch.linspace(0, 1, per_link, dtype=hand.dtype, device=hand.device)
@@ -179,7 +179,7 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     lam = torch.full((N, 1, 1), 1e-4, dtype=q.dtype, device=q.device)
     best_q, best_cost = q, torch.full((N,), float("inf"), dtype=q.dtype, device=q.device)
     best_A = best_g = None
-    for _ in range(iters + 1):
+    for it in range(iters + 1):
         local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
                            ax_local.expand(N, A_, 3)], 1)
         _, x, J = hand.kinematics(q, link_all, local, root)
@@ -213,6 +213,9 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         L, _ = torch.linalg.cholesky_ex(Ad)
         step = torch.cholesky_solve(-best_g.unsqueeze(-1), L).squeeze(-1)
         q = torch.minimum(torch.maximum(best_q + step, lo), hi)
+        # converged everywhere (steps below 1e-4 rad): stop early; checked every 4 iterations (a host sync)
+        if it % 4 == 3 and bool(((q - best_q).abs().amax() < 1e-4)):
+            break
     return best_q
 
 

@@ -87,12 +87,18 @@ def _points_in_object(problem: SynthesisProblem, q: torch.Tensor, c_local: torch
 def _sliding_dirs(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local, slide_speed: float):
     """Per frame and contact slot: the unit direction of the object's material point relative to the hand point
     (world; zero for static contacts) and the sliding flag (T, K). The hand point's velocity relative to the
-    object is a central difference of its object-frame position (one-sided at the ends)."""
+    object is a central difference of its object-frame position over the neighbouring frames in which the same
+    slot is in contact (one-sided where only one is; a contact held for a single frame is static)."""
     T = q.shape[0]
     ar = torch.arange(T, device=q.device)
     ia, ib = (ar + 1).clamp(0, T - 1), (ar - 1).clamp(0, T - 1)
-    dt = ((ia - ib).clamp_min(1).to(q.dtype) / problem.fps)[:, None, None]
-    v_obj = (_points_in_object(problem, q, c_local, ia) - _points_in_object(problem, q, c_local, ib)) / dt
+    here = _points_in_object(problem, q, c_local, ar)
+    after = _points_in_object(problem, q, c_local, ia)
+    before = _points_in_object(problem, q, c_local, ib)
+    use_a = (c_mask[ia] & (ia != ar)[:, None]).to(q.dtype)[..., None]
+    use_b = (c_mask[ib] & (ib != ar)[:, None]).to(q.dtype)[..., None]
+    span = (use_a + use_b).clamp_min(1) / problem.fps
+    v_obj = (use_a * (after - here) + use_b * (here - before)) / span
     v_world = (problem.object_pose[:, None, :3, :3] @ v_obj.unsqueeze(-1)).squeeze(-1)
     speed = v_world.norm(dim=-1)
     sliding = c_mask & (speed > slide_speed)
@@ -112,11 +118,26 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local
     return res, sliding & res.c_mask
 
 
+def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor, width: float = 2.0) -> torch.Tensor:
+    """q_smooth with the searched poses blended back in around the frames ``bad`` (T,) bool: weight 1 at a bad
+    frame, falling off as exp(-(d / width)^2) with the distance d in frames."""
+    T = q_smooth.shape[0]
+    idx = bad.nonzero().squeeze(-1).to(q_smooth.dtype)
+    t = torch.arange(T, device=q_smooth.device, dtype=q_smooth.dtype)
+    w = torch.exp(-(((t[:, None] - idx[None]) / width) ** 2)).amax(-1).reshape(T, 1, 1)
+    return (1 - w) * q_smooth + w * q_search
+
+
 def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
                       slide_speed: float = 0.02, reconstruct: bool = True) -> FinalSolution | None:
-    """Reconstruct and re-check one searched path (see the module docstring); None if neither the smoothed nor the
-    searched poses pass the contact and dynamic test in every frame."""
-    attempts = []
+    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn: the smoothed motion;
+    the smoothed motion with the searched poses blended back in around the frames that failed; the searched
+    poses. None if none passes the contact and dynamic test in every frame."""
+    def attempt(q):
+        res, sliding = _evaluate_motion(problem, q, sol.c_mask, sol.c_local, ns, slide_speed)
+        return res, sliding
+
+    candidates = []
     if reconstruct:
         qs = []
         for h, hand in enumerate(problem.hands):
@@ -131,16 +152,22 @@ def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, n
             rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
                                      object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol)
             qs.append(rec.q.to(sol.q.dtype))
-        attempts.append((torch.stack(qs, 1), True))
-    attempts.append((sol.q, False))
-    for q, smoothed in attempts:
-        res, sliding = _evaluate_motion(problem, q, sol.c_mask, sol.c_local, ns, slide_speed)
-        if bool(res.feasible.all()):
-            return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point,
-                                 c_normal=res.c_normal, c_force=res.c_force, env_force=res.env_force,
-                                 guiding=sol.guiding, guide_obj=sol.guide_obj, sliding=sliding,
-                                 reconstructed=smoothed, index=index)
-    return None
+        q_rec = torch.stack(qs, 1)
+        res, sliding = attempt(q_rec)
+        candidates.append((q_rec, res, sliding, True))
+        if not bool(res.feasible.all()):
+            q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
+            res, sliding = attempt(q_mix)
+            candidates.append((q_mix, res, sliding, True))
+    if not candidates or not bool(candidates[-1][1].feasible.all()):
+        res, sliding = attempt(sol.q)
+        candidates.append((sol.q, res, sliding, False))
+    q, res, sliding, smoothed = candidates[-1]
+    if not bool(res.feasible.all()):
+        return None
+    return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point, c_normal=res.c_normal,
+                         c_force=res.c_force, env_force=res.env_force, guiding=sol.guiding, guide_obj=sol.guide_obj,
+                         sliding=sliding, reconstructed=smoothed, index=index)
 
 
 def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0, seed: int = 0,
@@ -164,7 +191,7 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     report("prune")
     init = prune_patches(problem, gen, settings=node_settings)
     t_prep = time.perf_counter() - t_start
-    reserve = min(0.25 * time_budget, 1.5 * solutions)
+    reserve = min(0.4 * time_budget, 4.0 * solutions)             # about what reconstruction takes per path
     settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
                               solutions=solutions, time_budget=max(1.0, time_budget - t_prep - reserve))
 
@@ -177,7 +204,9 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     finals, excluded = [], 0
     for i, path in enumerate(paths):
         report("reconstruct", solution=i, of=len(paths))
-        fin = finalize_solution(problem, path, len(finals), ns=node_settings, reconstruct=reconstruct)
+        # past the budget, the remaining paths are checked as searched (no smoothing)
+        smooth = reconstruct and time.perf_counter() - t_start < time_budget
+        fin = finalize_solution(problem, path, len(finals), ns=node_settings, reconstruct=smooth)
         if fin is None:
             excluded += 1
         else:

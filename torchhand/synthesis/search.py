@@ -147,6 +147,7 @@ class _Search:
         self.solutions: list[tuple[int, list[_Node]]] = []
         self.uid = 0
         self.solution_nodes: set = set()
+        self.solution_q: list = []
         hand = problem.hands[0]
         self.tip_link = hand.distal_link
         self.tip_local = pad_points(hand)
@@ -243,7 +244,7 @@ class _Search:
 
     def _informed(self, tree: _Tree, node: _Node, w: int) -> list:
         """Plans of one expansion: informed by the last failure where there is one, fresh otherwise."""
-        plans = []
+        plans, seen = [], set()
         for i in range(self.s.candidates):
             if node.fail is None or i >= self.s.candidates // 2 + 1:
                 plans.append(self._plan(tree, node, w))
@@ -266,7 +267,13 @@ class _Search:
                 # a dynamic failure: new guiding points for every finger, and free fingers now establish contact
                 # before the frame that failed (more contacts can carry the wrench)
                 plans.append(self._plan(tree, node, w, establish=0.9, land_max=k_fail))
-        return plans
+        unique = []
+        for plan in plans:                     # identical plans would give identical children
+            key = tuple(plan)
+            if key not in seen:
+                seen.add(key)
+                unique.append(plan)
+        return unique
 
     # --- one batched expansion of every tree ------------------------------------------------------------------
     def _expand(self, jobs):
@@ -434,11 +441,14 @@ class _Search:
             if not tree.stack or tree.found >= tree.cap:
                 self._restart(tree)
             node = tree.stack[-1]
-            if node.t1 >= self.T:                      # a full path: record it, then backtrack
+            if node.t1 >= self.T:                      # a full path: record it (unless seen), then backtrack
                 path = list(tree.stack[1:])
-                self.solutions.append((tree.index, path))
-                self.solution_nodes.update(path)
-                tree.found += 1
+                q = torch.cat([n.frames["q"] for n in path])
+                if not any(torch.allclose(q, other, atol=1e-4) for other in self.solution_q):
+                    self.solutions.append((tree.index, path))
+                    self.solution_q.append(q)
+                    self.solution_nodes.update(path)
+                    tree.found += 1
                 tree.stack.pop()
                 continue
             if node.children >= node.target or node.expansions >= self.s.max_expansions:
