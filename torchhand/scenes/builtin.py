@@ -40,7 +40,7 @@ PALM_CENTRE = np.array([0.05, 0.0, -0.015])
 
 _APPROACH = 10       # frames of approach and of retreat
 _APPROACH_DIST = 0.06  # metres along the palm normal
-_GAP = 0.016         # palm-to-surface gap while holding, metres (the thenar eminence and the thumb
+_GAP = 0.009         # palm-to-surface gap while holding, metres (the thenar eminence and the thumb
 #                      metacarpal of the rest hand stand about 1 cm below the palm centre)
 _HAND_FRICTION = 0.8
 _TABLE = Environment(table=True, table_height=TABLE_HEIGHT, friction=0.4)

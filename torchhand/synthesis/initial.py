@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from ..collision import rigid_inverse
-from .node_test import Guides, NodeTestSettings, pad_points, test_frame
+from .node_test import Guides, NodeTestSettings, pad_points, run_node_test
 from .problem import SynthesisProblem
 
 __all__ = ["InitialSamples", "prune_patches"]
@@ -95,7 +95,7 @@ def prune_patches(problem: SynthesisProblem, generator: torch.Generator, *, per_
                         local=pad_points(hand0).expand(n, H, F, 3).clone(), obj=problem.surface[sample],
                         slide=torch.zeros(n, H, F, 3, dtype=problem.dtype, device=device))
         q_prev = torch.stack([hd.q_rest for hd in problem.hands]).expand(n, H, -1).clone()
-        res = test_frame(problem, torch.full((n,), t, device=device), q_prev,
+        res = run_node_test(problem, torch.full((n,), t, device=device), q_prev,
                          torch.ones(n, dtype=torch.bool, device=device), guides, settings=settings,
                          dynamics=False)
         good = active & ~res.kin_fail

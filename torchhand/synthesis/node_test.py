@@ -34,7 +34,7 @@ from torchhand.kernels.status import SolverStatus
 
 from .problem import SynthesisProblem
 
-__all__ = ["Guides", "NodeTestSettings", "FrameResult", "test_frame", "evaluate_poses", "pad_points", "CAUSE_NONE", "CAUSE_KINEMATIC",
+__all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points", "CAUSE_NONE", "CAUSE_KINEMATIC",
            "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
 
 CAUSE_NONE, CAUSE_KINEMATIC, CAUSE_FINGERS, CAUSE_DYNAMIC = 0, 1, 2, 3
@@ -64,7 +64,8 @@ class Guides:
 class NodeTestSettings:
     """Tolerances and iteration counts of the node test (metres, radians)."""
 
-    dq: float = 0.2                # |q - q_prev| bound per frame (Eq. 3), radians
+    dq: float = 0.3                # |q - q_prev| bound per frame (Eq. 3), radians
+    dq_free: float = 0.6           # the same bound for fingers without a guiding point
     ik_iters: int = 20             # LM iterations
     ik_tol: float = 0.002          # a guiding point farther than this from its target fails the finger
     nail_cos: float = 0.0          # Eq. 2: nail . outward normal >= nail_cos
@@ -239,13 +240,15 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
         lifted = first[:, None].expand(N, D)
     else:
         lifted = first[:, h].gather(1, joint_finger.clamp_min(0).expand(N, D)) & (joint_finger >= 0)
-    dq = torch.where(lifted, torch.full_like(q_prev, 10.0), torch.full_like(q_prev, s.dq))
-    lo = torch.maximum(lim[:, 0], q_prev - dq)
-    hi = torch.minimum(lim[:, 1], q_prev + dq)
     # joints of unguided (free) fingers: start at q_prev moved toward rest (§6: free fingers assume a rest pose)
-    # and move only as far as penetration resolution needs (the regularisation holds them there otherwise)
+    # and move only as far as penetration resolution needs (the regularisation holds them there otherwise);
+    # they may move ``dq_free`` per frame, since no contact constrains their path
     act = guides.active[:, h]                                           # (N, F)
     guided_joint = act.gather(1, joint_finger.clamp_min(0).expand(N, D)) & (joint_finger >= 0)
+    dq = torch.where(lifted, torch.full_like(q_prev, 10.0),
+                     torch.where(guided_joint, torch.full_like(q_prev, s.dq), torch.full_like(q_prev, s.dq_free)))
+    lo = torch.maximum(lim[:, 0], q_prev - dq)
+    hi = torch.minimum(lim[:, 1], q_prev + dq)
     q_free = torch.minimum(torch.maximum(hand.q_rest.expand(N, D), lo), hi)
     q_free = q_prev + 0.5 * (q_free - q_prev)
     q0 = torch.where(guided_joint, q_prev.clamp(lim[:, 0], lim[:, 1]), q_free)
@@ -273,7 +276,7 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     return q, poses, err, pen
 
 
-def test_frame(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
+def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
                guides: Guides, weights: torch.Tensor | None = None,
                settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True) -> FrameResult:
     """Kinematic and dynamic test of N candidates (see the module docstring).

@@ -191,15 +191,16 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     report("prune")
     init = prune_patches(problem, gen, settings=node_settings)
     t_prep = time.perf_counter() - t_start
-    reserve = min(0.4 * time_budget, 4.0 * solutions)             # about what reconstruction takes per path
     settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
-                              solutions=solutions, time_budget=max(1.0, time_budget - t_prep - reserve))
+                              solutions=solutions, time_budget=max(1.0, time_budget - t_prep))
 
     def on_round(s):
         report("search", nodes_tested=s.stats.nodes_tested, solutions=len(s.solutions),
                dead_ends=s.stats.dead_ends)
 
-    paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round)
+    # every path found takes about 4 s of reconstruction (T ~ 70 frames, one hand) off the search's budget
+    paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
+                          reserve_per_solution=0.06 * problem.T * problem.H if reconstruct else 0.0)
     t_search = time.perf_counter() - t_start - t_prep
     finals, excluded = [], 0
     for i, path in enumerate(paths):

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
@@ -159,16 +160,49 @@ def _in_workspace(points_hand: torch.Tensor, codes: torch.Tensor, voxel: float) 
     return (codes[pos] == c.reshape(-1)).reshape(c.shape)
 
 
+def _thin_env(env: EnvContacts, most: int) -> EnvContacts:
+    """At most ``most`` table contacts per frame, by farthest-point selection among each frame's support points
+    (a round base touches with dozens of hull vertices; a few spread along the rim span nearly the same support
+    polygon, which keeps the dynamic test small). Deviation: the support polygon shrinks to the chosen points."""
+    T, E = env.mask.shape
+    if E <= most:
+        return env
+    keep = torch.zeros(T, most, dtype=torch.long)
+    for t in range(T):
+        idx = env.mask[t].nonzero().squeeze(-1)
+        if idx.numel() <= most:
+            keep[t, :idx.numel()] = idx
+            keep[t, idx.numel():] = E                                   # padding (index of an appended empty slot)
+            continue
+        pts = env.points[t, idx]
+        chosen = [0]
+        d = (pts - pts[0]).norm(dim=-1)
+        for _ in range(most - 1):
+            j = int(d.argmax())
+            chosen.append(j)
+            d = torch.minimum(d, (pts - pts[j]).norm(dim=-1))
+        keep[t] = idx[torch.tensor(chosen)]
+
+    def pick(x, fill):
+        pad = torch.full_like(x[:, :1], fill) if x.dim() == 2 else torch.zeros_like(x[:, :1])
+        xx = torch.cat([x, pad], 1)
+        return torch.gather(xx, 1, keep if x.dim() == 2 else keep[..., None].expand(-1, -1, x.shape[-1]))
+
+    return EnvContacts(points=pick(env.points, 0), mask=pick(env.mask, False),
+                       sliding_velocity=pick(env.sliding_velocity, 0), support_index=pick(env.support_index, -1),
+                       normal=env.normal)
+
+
 def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dtype=torch.float32,
-                  voxel_size: float = 0.0015, surface_samples: int = 3000, progress: bool = False
-                  ) -> SynthesisProblem:
+                  voxel_size: float = 0.0015, surface_samples: int = 3000, max_env_contacts: int = 8,
+                  progress: bool = False) -> SynthesisProblem:
     """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU)."""
     hands = tuple(default_hand(track.side, track.length).to(device, dtype) for track in scene.hands)
     root = torch.stack([track.wrist_pose for track in scene.hands]).to(device, dtype)
     pose64 = scene.object_pose.double()
     obj = scene.object
-    com64, wrench64 = required_wrench(pose64, torch.as_tensor(obj.com, dtype=torch.float64), obj.mass,
-                                      torch.as_tensor(obj.inertia, dtype=torch.float64), scene.gravity.double(),
+    com64, wrench64 = required_wrench(pose64, torch.tensor(np.array(obj.com), dtype=torch.float64), obj.mass,
+                                      torch.tensor(np.array(obj.inertia), dtype=torch.float64), scene.gravity.double(),
                                       scene.fps)
     sdf = SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(device, dtype)
     pts, nrm = sample_surface(obj.mesh, surface_samples, generator, dtype=torch.float64)
@@ -181,7 +215,7 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
         hand64 = default_hand(track.side, track.length)
         codes = finger_workspace(hand64, generator)
         patches.append(torch.stack([_in_workspace(local, c, 0.006) for c in codes]))   # (F, T, S)
-    env = environment_contacts(scene)
+    env = _thin_env(environment_contacts(scene), max_env_contacts)
     return SynthesisProblem(
         hands=hands, sides=tuple(t.side for t in scene.hands), root=root,
         object_pose=pose64.to(device, dtype), object_inv=rigid_inverse(pose64).to(device, dtype),

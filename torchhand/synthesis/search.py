@@ -6,7 +6,7 @@ from ``[ceil(W/2), ceil(3W/2)]`` with ``W = T / epsilon``, so a path has about `
 length. Expanding a node draws ``candidates`` guiding configurations from the contact-dynamics sampling rules of
 §4.2 (force inside the cone: static; on its boundary: static or slide along the tangential force; zero: static
 or relocate to a neighbouring point; free fingers may establish contact on their pruned patch samples) and tests
-them frame by frame; the candidates of all trees form one batch per frame (:func:`~.node_test.test_frame`).
+them frame by frame; the candidates of all trees form one batch per frame (:func:`~.node_test.run_node_test`).
 
 Batched reading of Algorithm 2: the ``candidates`` siblings of an expansion are tested together; the first
 feasible one in random order becomes the child (PickOneNode), the other feasible ones are kept and are the next
@@ -29,7 +29,7 @@ import torch
 
 from .initial import InitialSamples
 from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
-                        FrameResult, Guides, NodeTestSettings, pad_points, test_frame)
+                        FrameResult, Guides, NodeTestSettings, pad_points, run_node_test)
 from .problem import SynthesisProblem
 
 __all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
@@ -350,7 +350,7 @@ class _Search:
             act_k = active[sel] & (land[sel] <= k)
             guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
             lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
-            res = test_frame(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
+            res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
                              weights[sel], settings=self.ns)
             self.stats.nodes_tested += int(sel.numel())
             ok = res.feasible
@@ -399,12 +399,14 @@ class _Search:
         return results
 
     # --- main loop --------------------------------------------------------------------------------------------
-    def run(self, progress=None) -> list[Solution]:
+    def run(self, progress=None, reserve_per_solution: float = 0.0) -> list[Solution]:
         s = self.s
         start = time.perf_counter()
         for tree in self.trees:
             self._restart(tree)
-        while len(self.solutions) < s.solutions and time.perf_counter() - start < s.time_budget:
+        # the budget shrinks by ``reserve_per_solution`` for every path found (time its reconstruction needs)
+        while len(self.solutions) < s.solutions and \
+                time.perf_counter() - start < s.time_budget - reserve_per_solution * len(self.solutions):
             jobs = []
             for tree in self.trees:
                 node = self._frontier(tree)
@@ -482,13 +484,13 @@ class _Search:
 
 
 def search(problem: SynthesisProblem, init: InitialSamples, settings: SearchSettings = SearchSettings(), *,
-           node_settings: NodeTestSettings = NodeTestSettings(), seed: int = 0, progress=None
-           ) -> tuple[list[Solution], SearchStats]:
+           node_settings: NodeTestSettings = NodeTestSettings(), seed: int = 0, progress=None,
+           reserve_per_solution: float = 0.0) -> tuple[list[Solution], SearchStats]:
     """Run the search (see the module docstring). Returns the solutions in the order found and the counters.
 
     progress: optional callable(search) after every batched expansion (it can read ``search.stats`` and
-    ``len(search.solutions)``).
+    ``len(search.solutions)``). reserve_per_solution: seconds taken off the time budget for every path found.
     """
     runner = _Search(problem, init, settings, node_settings, seed)
-    sols = runner.run(progress)
+    sols = runner.run(progress, reserve_per_solution)
     return sols, runner.stats

@@ -1,0 +1,225 @@
+"""Contact-sampling synthesis (torchhand.synthesis): wrench, node test, search determinism, the end-to-end run on a
+built-in scene checked with exact geometry, the result-directory contract, and bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import torchhand
+from torchhand.cli import main as cli
+from torchhand.synthesis.check import LIMITS, check_result
+from torchhand.synthesis.node_test import Guides, NodeTestSettings, pad_points, run_node_test
+from torchhand.synthesis.problem import build_problem, required_wrench
+
+G = 9.81
+
+
+# --- the required wrench (Newton–Euler) against a closed form -------------------------------------------------
+
+def test_required_wrench_spinning_and_falling_box():
+    """A box spinning at constant omega about a tilted axis while its COM accelerates: F = m (a - g),
+    tau = omega x I_w omega (alpha = 0), from finite differences of the poses."""
+    fps, T, m = 240.0, 40, 0.5
+    inertia = torch.diag(torch.tensor([0.002, 0.003, 0.004], dtype=torch.float64))
+    axis = torch.tensor([0.3, -0.2, 0.9], dtype=torch.float64)
+    axis = axis / axis.norm()
+    w = 2.0
+    t = torch.arange(T, dtype=torch.float64) / fps
+    R = torch.as_tensor(Rotation.from_rotvec((w * t[:, None] * axis).numpy()).as_matrix())
+    acc = torch.tensor([0.5, 0.0, -1.0], dtype=torch.float64)
+    pose = torch.eye(4, dtype=torch.float64).repeat(T, 1, 1)
+    pose[:, :3, :3] = R
+    pose[:, :3, 3] = 0.5 * acc * t[:, None] ** 2
+    g = torch.tensor([0, 0, -G], dtype=torch.float64)
+    com, wrench = required_wrench(pose, torch.zeros(3, dtype=torch.float64), m, inertia, g, fps)
+    torch.testing.assert_close(wrench[:, :3], (m * (acc - g)).expand(T, 3), atol=1e-6, rtol=0)
+    omega = w * axis
+    Iw = R @ inertia @ R.transpose(-1, -2)
+    expected = torch.cross(omega.expand(T, 3), (Iw @ omega), dim=-1)
+    torch.testing.assert_close(wrench[2:-2, 3:], expected[2:-2], atol=1e-6, rtol=1e-4)
+
+
+# --- the node test on a built-in scene ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def box_turn_problem():
+    scene = torchhand.load_scene("box-turn")
+    return scene, build_problem(scene, torch.Generator().manual_seed(0))
+
+
+def test_free_hand_is_feasible_while_the_box_rests(box_turn_problem):
+    """Before the box moves the table carries it: a hand with no guiding points passes (B = 1 and B = 7)."""
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    for N in (1, 7):
+        guides = Guides(torch.zeros(N, 1, 5, dtype=torch.bool), hand.distal_link.expand(N, 1, 5).clone(),
+                        pad_points(hand).expand(N, 1, 5, 3).clone(), torch.zeros(N, 1, 5, 3),
+                        torch.zeros(N, 1, 5, 3))
+        res = run_node_test(p, torch.full((N,), 5), hand.q_rest.expand(N, 1, -1).clone(),
+                         torch.ones(N, dtype=torch.bool), guides)
+        assert res.q.shape == (N, 1, hand.num_joints)
+        assert bool(res.feasible.all())
+        # the table carries the weight: the env forces add up to m g
+        total = res.env_force.sum(1)
+        torch.testing.assert_close(total[:, 2], torch.full((N,), p.weight), atol=1e-3 * p.weight, rtol=0)
+
+
+def test_guided_fingertip_reaches_its_target_within_joint_limits(box_turn_problem):
+    """IK puts the guided pad on a pruned patch sample (within ik_tol), inside the joint limits, nail facing out."""
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    # the centre of the box's top face, seen from the index finger at the hold
+    top = torch.tensor([[0.0, 0.0, 0.03]])
+    N = 1
+    active = torch.zeros(N, 1, 5, dtype=torch.bool)
+    active[0, 0, 1] = True
+    obj = torch.zeros(N, 1, 5, 3)
+    obj[0, 0, 1] = top[0] + torch.tensor([0.02, 0.0, 0.0])
+    guides = Guides(active, hand.distal_link.expand(N, 1, 5).clone(), pad_points(hand).expand(N, 1, 5, 3).clone(),
+                    obj, torch.zeros(N, 1, 5, 3))
+    res = run_node_test(p, torch.tensor([20]), hand.q_rest.expand(N, 1, -1).clone(), torch.ones(N, dtype=torch.bool),
+                     guides, dynamics=False)
+    lim = hand.joint_limits
+    assert bool(((res.q[0, 0] >= lim[:, 0] - 1e-6) & (res.q[0, 0] <= lim[:, 1] + 1e-6)).all())
+    if not bool(res.kin_fail[0, 0, 1]):
+        assert float(res.guide_err[0, 0, 1]) <= NodeTestSettings().ik_tol
+    # a target 30 cm away is unreachable: the finger fails the kinematic test
+    far = obj.clone()
+    far[0, 0, 1] = torch.tensor([0.3, 0.0, 0.03])
+    res = run_node_test(p, torch.tensor([20]), hand.q_rest.expand(N, 1, -1).clone(), torch.ones(N, dtype=torch.bool),
+                     Guides(active, guides.link, guides.local, far, guides.slide), dynamics=False)
+    assert bool(res.kin_fail[0, 0, 1]) and int(res.cause[0]) == 1
+
+
+# --- end to end ------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def box_turn_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("synth") / "box-turn"
+    rc = cli(["synthesize", "box-turn", "--out", str(out), "--solutions", "2", "--time-budget", "150",
+              "--seed", "0", "--no-progress"])
+    return rc, out
+
+
+def test_synthesize_writes_the_contract(box_turn_run):
+    rc, out = box_turn_run
+    assert rc == 0
+    stats = json.loads((out / "stats.json").read_text())
+    for key in ("epsilon", "T", "time_s", "solutions", "dead_ends", "total_frames", "success_frames",
+                "success_ratio", "solution_ratio", "nodes_tested", "nodes_per_second", "rejections", "diversity_m"):
+        assert key in stats
+    assert stats["solutions"] >= 1 and stats["T"] == 66
+    assert 0 < stats["solution_ratio"] < stats["success_ratio"] <= 1
+    assert (out / "hand.xml").exists() and (out / "scene" / "scene.toml").exists()
+    hand = torchhand.default_hand("right")
+    sols = sorted((out / "solutions").glob("sol_*.npz"))
+    assert len(sols) == stats["solutions"]
+    with np.load(sols[0]) as z:
+        T, D = 66, hand.num_joints
+        assert z["q"].shape == (T, D) and list(z["joint_names"]) == list(hand.joint_names)
+        assert z["root_pose"].shape == (T, 4, 4) and z["object_pose"].shape == (T, 4, 4)
+        assert float(z["fps"]) == 30.0
+        K = z["contact_mask"].shape[1]
+        assert K <= 32 and z["contact_link"].shape == (T, K)
+        for key in ("contact_point", "contact_normal", "contact_force"):
+            assert z[key].shape == (T, K, 3)
+        assert ((z["contact_link"] >= 0) == z["contact_mask"]).all()
+        assert list(z["contact_link_name"]) == list(hand.link_names)
+        E = z["env_contact_mask"].shape[1]
+        assert z["env_contact_point"].shape == (T, E, 3) and z["env_contact_force"].shape == (T, E, 3)
+        assert z["guiding"].shape == (T, 5) and z["guiding"].dtype == bool
+        assert z["guiding"].any() and z["contact_mask"].any()
+
+
+def test_every_frame_passes_the_exact_checks(box_turn_run):
+    """trimesh's exact distances (not the SDF grid): penetration, contact geometry, cones, balance, limits."""
+    _, out = box_turn_run
+    reports = check_result(out)
+    assert reports
+    for r in reports:
+        for key, limit in LIMITS.items():
+            assert r[key] <= limit, f"{r['file']}: {key} = {r[key]:.3g} > {limit}"
+
+
+def test_checker_catches_a_broken_solution(box_turn_run, tmp_path):
+    """The checker is not vacuous: a penetrating hand, a force outside its cone and a missing force are caught."""
+    _, out = box_turn_run
+    scene = torchhand.load_scene(out / "scene")
+    from torchhand.synthesis.check import check_solution
+
+    with np.load(out / "solutions" / "sol_000.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    base = check_solution(scene, arrays)
+    assert base["penetration_m"] <= LIMITS["penetration_m"]
+    sunk = dict(arrays, root_pose=arrays["root_pose"].copy())
+    sunk["root_pose"][:, 2, 3] -= 0.03                     # the whole hand 3 cm lower: into the box
+    assert check_solution(scene, sunk)["penetration_m"] > LIMITS["penetration_m"]
+    t, k = np.argwhere(arrays["contact_mask"])[0]
+    pushed = dict(arrays, contact_force=arrays["contact_force"].copy())
+    n = arrays["contact_normal"][t, k]
+    tangent = np.cross(n, [1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0])
+    pushed["contact_force"][t, k] = n + 5.0 * tangent / np.linalg.norm(tangent)
+    bad = check_solution(scene, pushed)
+    assert bad["cone_violation"] > LIMITS["cone_violation"]
+    dropped = dict(arrays, env_contact_force=np.zeros_like(arrays["env_contact_force"]))
+    assert check_solution(scene, dropped)["force_error_rel"] > LIMITS["force_error_rel"]
+
+
+def test_same_seed_same_solutions(box_turn_problem):
+    """Each tree has its own generator stream: the same seed reproduces the search exactly."""
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.search import SearchSettings, search
+
+    scene = box_turn_problem[0].with_frames(0, 16)
+    runs = []
+    for _ in range(2):
+        gen = torch.Generator().manual_seed(3)
+        p = build_problem(scene, gen)
+        init = prune_patches(p, gen)
+        sols, stats = search(p, init, SearchSettings(trees=4, candidates=6, solutions=2, time_budget=1e9,
+                                                     epsilon=3), seed=3)
+        runs.append((sols, stats.nodes_tested))
+    (a, na), (b, nb) = runs
+    assert na == nb and len(a) == len(b) and len(a) >= 1
+    for sa, sb in zip(a, b):
+        torch.testing.assert_close(sa.q, sb.q)
+        assert torch.equal(sa.guiding, sb.guiding)
+
+
+# --- bad input ---------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv,needle", [
+    (["synthesize", "no-such-scene", "--out", "X"], "no-such-scene"),
+    (["synthesize", "box-turn", "--out", "X", "--frames", "5:2"], "--frames"),
+    (["synthesize", "box-turn", "--out", "X", "--solutions", "0"], "--solutions"),
+    (["synthesize", "box-turn", "--out", "X", "--time-budget", "-1"], "--time-budget"),
+])
+def test_bad_input_is_one_line_and_exit_2(argv, needle, tmp_path, capsys):
+    argv = [a if a != "X" else str(tmp_path / "out") for a in argv]
+    assert cli(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]
+    assert not (tmp_path / "out").exists()          # nothing written for a bad request
+
+
+def test_infeasible_motion_ends_with_a_report(tmp_path, capsys):
+    """An object thrown upward that no hand touches: no solution, exit code 1 and a clear report, quickly."""
+    scene = torchhand.load_scene("box-pickup").with_frames(0, 12)
+    pose = scene.object_pose.clone()
+    pose[:, 2, 3] += 0.5 * torch.arange(12, dtype=torch.float64) ** 2 / 30.0 ** 2 * 40.0   # 4 g upward
+    import dataclasses
+
+    bad = dataclasses.replace(scene, object_pose=pose)
+    bad.export(tmp_path / "thrown")
+    rc = cli(["synthesize", str(tmp_path / "thrown"), "--out", str(tmp_path / "out"), "--time-budget", "15",
+              "--no-progress"])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "no feasible motion" in err
