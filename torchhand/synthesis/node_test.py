@@ -81,6 +81,8 @@ class NodeTestSettings:
     #                                times the object's weight (forces are cone-feasible by construction)
     boundary: float = 0.97         # |f_t| >= boundary mu f_n: the force is on the cone's boundary
     zero_force: float = 1e-3       # f_n below zero_force * weight: no force
+    slide_speed: float = 0.02      # a held contact moving on the object faster than this slides, m/s
+    cone_iters: int | None = None  # iteration limit of the friction-cone solver (None: its default)
 
 
 @dataclass(frozen=True)
@@ -94,7 +96,8 @@ class FrameResult:
     c_mask:      hand contacts, (N, K) bool, K = H L (slot h L + l is link l of hand h)
     c_local:     hand point of each contact in its link's frame, (N, K, 3); c_point: contact point on the object
                  surface, (N, K, 3) world; c_normal: into the object, (N, K, 3); c_force: force of the hand on the
-                 object, (N, K, 3) world, newtons (zero unless the dynamic test ran and converged)
+                 object, (N, K, 3) world, newtons (zero unless the dynamic test ran and converged); c_sliding:
+                 contacts held since the previous frame whose hand point slides on the object, (N, K) bool
     env_force:   (N, E, 3) world, newtons
     penetration: deepest penetration of any hand sample, (N,), metres (>= 0)
     guide_err:   distance of each guiding point from its target, (N, H, F), metres (0 where inactive)
@@ -109,6 +112,7 @@ class FrameResult:
     kin_fail: torch.Tensor
     pair: torch.Tensor
     c_mask: torch.Tensor
+    c_sliding: torch.Tensor
     c_local: torch.Tensor
     c_point: torch.Tensor
     c_normal: torch.Tensor
@@ -278,14 +282,18 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
 
 def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
                guides: Guides, weights: torch.Tensor | None = None,
-               settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True) -> FrameResult:
+               settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True,
+               prev_mask: torch.Tensor | None = None) -> FrameResult:
     """Kinematic and dynamic test of N candidates (see the module docstring).
 
     t: frame of each candidate, (N,) long; q_prev: previous pose, (N, H, D), radians; first: Eq. 3 is not applied,
     (N,) bool for whole candidates (no previous pose) or (N, H, F) bool per finger (fingers landing on the
     object); guides: :class:`Guides`; weights: objective weight of each hand contact's finger, (N, H, F) (default
     1; the palm's weight is 1); dynamics: False skips the dynamic test (forces zero, feasibility from the
-    kinematic test alone).
+    kinematic test alone); prev_mask: the hand contacts of the previous frame (pose ``q_prev`` at ``t - 1``),
+    (N, K) bool, or None where there is no previous frame. A contact held over both frames whose hand point moves
+    on the object faster than ``settings.slide_speed`` is sliding: its force must lie on the cone's boundary ray
+    opposite the motion (the final check of the pipeline applies the same rule).
     """
     kin = [_hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings) for h in range(problem.H)]
     # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
@@ -297,15 +305,17 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
         L = problem.hands[h].num_links
         onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(f64) * guides.active[:, h, :, None].to(f64)
         hand_slide.append(-torch.einsum("nfl,nfc->nlc", onehot, slide_world[:, h]))
-    return _finish(problem, t, kin, torch.cat(hand_slide, 1), weights, settings, dynamics)
+    prev = None if prev_mask is None else (q_prev, prev_mask)
+    return _finish(problem, t, kin, torch.cat(hand_slide, 1), weights, settings, dynamics, prev)
 
 
-def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, hand_slide: torch.Tensor | None = None,
+def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, q_prev: torch.Tensor | None = None,
+                   prev_mask: torch.Tensor | None = None,
                    settings: NodeTestSettings = NodeTestSettings()) -> FrameResult:
     """The contact and dynamic test of given poses, without IK (for reconstructed motion).
 
-    t: (N,) frames; q: (N, H, D) radians; hand_slide: unit direction in which the object's material point slides
-    relative to each hand-contact slot, (N, K, 3) world (zeros = static), default all static.
+    t: (N,) frames; q: (N, H, D) radians; q_prev, prev_mask: the pose at ``t - 1`` (N, H, D) and its hand contacts
+    (N, K) bool, for the sliding rule of :func:`run_node_test` (None: every contact static).
     """
     kin = []
     for h in range(problem.H):
@@ -315,14 +325,38 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
                                       problem.sdf.values, problem.sdf.origin, problem.sdf.voxel_size,
                                       corners=problem.sdf.corners)
         kin.append((q[:, h], poses, q.new_zeros(t.shape[0], hand.num_fingers), pen))
-    if hand_slide is None:
-        K = sum(hd.num_links for hd in problem.hands)
-        hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
-    return _finish(problem, t, kin, hand_slide.to(torch.float64), None, settings, True)
+    K = sum(hd.num_links for hd in problem.hands)
+    hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
+    prev = None if prev_mask is None else (q_prev, prev_mask)
+    return _finish(problem, t, kin, hand_slide, None, settings, True, prev)
+
+
+def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, q: torch.Tensor,
+                  c_local: torch.Tensor, held: torch.Tensor, speed_tol: float):
+    """Sliding of the contacts held since the previous frame: the hand point (``c_local``, fixed on its link) in
+    the object frame at t - 1 (pose q_prev) and at t (pose q). Returns the unit direction of the object's
+    material point relative to the hand point, (N, K, 3) world float64 (zero where not sliding), and the sliding
+    flags (N, K)."""
+    tp = (t - 1).clamp_min(0)
+    pos = []
+    for when, qq in ((tp, q_prev), (t, q)):
+        out = []
+        for h, hand in enumerate(problem.hands):
+            L = hand.num_links
+            poses = hand.forward_kinematics(qq[:, h], problem.root[h, when])
+            out.append(_transform(poses, c_local[:, h * L:(h + 1) * L]))
+        pos.append(_transform(problem.object_inv[when][:, None], torch.cat(out, 1)))
+    v_obj = (pos[1] - pos[0]) * problem.fps
+    v_world = _rotate(problem.object_pose[t][:, None], v_obj).to(torch.float64)
+    speed = v_world.norm(dim=-1)
+    sliding = held & (speed > speed_tol)
+    direction = torch.where(sliding[..., None], -v_world / speed.clamp_min(1e-12)[..., None],
+                            torch.zeros_like(v_world))
+    return direction, sliding
 
 
 def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: torch.Tensor,
-            weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool) -> FrameResult:
+            weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool, prev=None) -> FrameResult:
     """Kinematic verdicts, contact collection and the dynamic test from each hand's (q, poses, guide error,
     penetration)."""
     H, F = problem.H, problem.F
@@ -374,6 +408,14 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     pair = torch.where(fingers_bad[:, None], pairs[which], torch.full_like(pairs[which], -1))
     kin_bad = kin_fail.flatten(1).any(-1)
 
+    # --- sliding from the motion where the previous frame is known (it overrides the guides' intent there) ---
+    c_sliding = torch.zeros_like(c_mask)
+    if prev is not None:
+        q_prev, prev_mask = prev
+        held = c_mask & prev_mask
+        direction, c_sliding = _motion_slide(problem, t, q_prev, q, c_local, held, s.slide_speed)
+        hand_slide = torch.where(held[..., None], direction, hand_slide)
+
     # --- dynamic test (Eqs. 4–8), float64, hand and table contacts together ----------------------------------
     K = c_mask.shape[1]
     E = problem.env.mask.shape[1]
@@ -392,7 +434,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     if not dynamics:
         run = torch.zeros_like(run)
     res = solve_friction_cone(pts, nrm, mu, problem.wrench[t].to(f64), mask=mask & run[:, None], weights=w,
-                              sliding_dir=torch.cat([hand_slide, env_slide], 1))
+                              sliding_dir=torch.cat([hand_slide, env_slide], 1), max_iters=s.cone_iters)
     dyn_ok = (res.status == int(SolverStatus.CONVERGED)) | (
         (res.status == int(SolverStatus.MAX_ITERATIONS)) & (res.residual <= s.balance_tol * problem.weight))
     forces = res.forces.to(dtype) * (run & dyn_ok)[:, None, None].to(dtype)
@@ -404,6 +446,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     # --- seeds: the most distal contact of every finger ------------------------------------------------------
     seeds = _seeds(problem, t, c_mask, c_local, c_point, c_normal, c_force, s)
     return FrameResult(q=q, feasible=feasible, cause=cause, kin_fail=kin_fail, pair=pair, c_mask=c_mask,
+                       c_sliding=c_sliding,
                        c_local=c_local, c_point=c_point, c_normal=c_normal, c_force=c_force, env_force=env_force,
                        penetration=penetration, guide_err=guide_err, **seeds)
 

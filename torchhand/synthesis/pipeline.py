@@ -7,17 +7,19 @@
 3. :func:`~.search.search`: the randomized depth-first search (time budget = what is left of ``time_budget``
    after preparation, less a reserve for the last stage);
 4. :func:`finalize_solution` for every path found: spacetime reconstruction (§6) of each hand, then the contact and
-   dynamic test of the reconstructed poses with every contact's actual sliding velocity (a contact whose hand
-   point moves on the object faster than ``slide_speed`` is sliding and must have its force on the cone boundary:
-   "solutions that violate sliding friction for non-guiding contacts are excluded", §6). A path whose
-   reconstruction fails this test falls back to its searched poses, checked the same way; a path that fails both
-   is excluded and counted.
+   dynamic test of the reconstructed poses with every contact's actual sliding velocity (a contact held since the
+   previous frame whose hand point moves on the object faster than ``NodeTestSettings.slide_speed`` is sliding and
+   must have its force on the cone boundary: "solutions that violate sliding friction for non-guiding contacts are
+   excluded", §6; the search applies the same rule, so its own poses pass it). A path whose reconstruction fails
+   this test gets its searched poses blended back in around the failing frames, then falls back to its searched
+   poses; a path that fails all three is excluded and counted.
 
 Conventions: world frame, metres, newtons, radians; forces are those of the hand on the object.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -26,7 +28,7 @@ import torch
 
 from ..scene import Scene
 from .initial import prune_patches
-from .node_test import NodeTestSettings, evaluate_poses
+from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
 from .problem import SynthesisProblem, build_problem
 from .reconstruct import ContactTrack, reconstruct_motion
 from .search import SearchSettings, SearchStats, Solution, search
@@ -70,52 +72,33 @@ class SynthesisResult:
     timings: dict = field(default_factory=dict)
 
 
-def _points_in_object(problem: SynthesisProblem, q: torch.Tensor, c_local: torch.Tensor, idx: torch.Tensor):
-    """Every contact slot's hand point (``c_local`` (T, K, 3), fixed on its link) posed at frames ``idx`` (T,),
-    in the object frame of those frames, (T, K, 3)."""
-    out = []
-    for h, hand in enumerate(problem.hands):
-        L = hand.num_links
-        poses = hand.forward_kinematics(q[idx, h], problem.root[h, idx])           # (T, L, 4, 4)
-        loc = c_local[:, h * L:(h + 1) * L]
-        out.append((poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3])
-    world = torch.cat(out, 1)
-    inv = problem.object_inv[idx]
-    return (inv[:, None, :3, :3] @ world.unsqueeze(-1)).squeeze(-1) + inv[:, None, :3, 3]
+def tree_index_put(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
+    """``res`` with the rows ``index`` (n,) replaced by those of ``values`` (n rows)."""
+    def put(a, b):
+        out = a.clone()
+        out[index] = b
+        return out
+    return FrameResult(**{f.name: put(getattr(res, f.name), getattr(values, f.name))
+                          for f in dataclasses.fields(FrameResult)})
 
 
-def _sliding_dirs(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local, slide_speed: float):
-    """Per frame and contact slot: the unit direction of the object's material point relative to the hand point
-    (world; zero for static contacts) and the sliding flag (T, K). The hand point's velocity relative to the
-    object is a central difference of its object-frame position over the neighbouring frames in which the same
-    slot is in contact (one-sided where only one is; a contact held for a single frame is static)."""
-    T = q.shape[0]
-    ar = torch.arange(T, device=q.device)
-    ia, ib = (ar + 1).clamp(0, T - 1), (ar - 1).clamp(0, T - 1)
-    here = _points_in_object(problem, q, c_local, ar)
-    after = _points_in_object(problem, q, c_local, ia)
-    before = _points_in_object(problem, q, c_local, ib)
-    use_a = (c_mask[ia] & (ia != ar)[:, None]).to(q.dtype)[..., None]
-    use_b = (c_mask[ib] & (ib != ar)[:, None]).to(q.dtype)[..., None]
-    span = (use_a + use_b).clamp_min(1) / problem.fps
-    v_obj = (use_a * (after - here) + use_b * (here - before)) / span
-    v_world = (problem.object_pose[:, None, :3, :3] @ v_obj.unsqueeze(-1)).squeeze(-1)
-    speed = v_world.norm(dim=-1)
-    sliding = c_mask & (speed > slide_speed)
-    direction = -v_world / speed.clamp_min(1e-12)[..., None]
-    return torch.where(sliding[..., None], direction, torch.zeros_like(direction)), sliding
-
-
-def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, c_mask, c_local, ns: NodeTestSettings,
-                     slide_speed: float):
-    """Two passes: contacts of the poses, then the dynamic test with the sliding directions those contacts have.
-    Returns (FrameResult of the second pass, sliding flags (T, K))."""
+def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings):
+    """The contact and dynamic test of a whole motion q (T, H, D), with the search's sliding rule (a contact held
+    since the previous frame whose hand point moves on the object faster than ``ns.slide_speed`` slides): one
+    pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
     first = evaluate_poses(problem, t, q, settings=ns)
-    dirs, sliding = _sliding_dirs(problem, q, first.c_mask, first.c_local, slide_speed)
-    res = evaluate_poses(problem, t, q, dirs, settings=ns)
-    return res, sliding & res.c_mask
+    prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
+    q_prev = torch.cat([q[:1], q[:-1]])
+    res = evaluate_poses(problem, t, q, q_prev, prev_mask, settings=ns)
+    retry = (res.cause == CAUSE_DYNAMIC).nonzero().squeeze(-1)
+    if retry.numel():
+        # a force solve that stopped at its iteration limit gets a longer one before the frame counts as failed
+        again = evaluate_poses(problem, t[retry], q[retry], q_prev[retry], prev_mask[retry],
+                               settings=dataclasses.replace(ns, cone_iters=20000))
+        res = tree_index_put(res, retry, again)
+    return res
 
 
 def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor, width: float = 2.0) -> torch.Tensor:
@@ -129,13 +112,13 @@ def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor,
 
 
 def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
-                      slide_speed: float = 0.02, reconstruct: bool = True) -> FinalSolution | None:
+                      reconstruct: bool = True) -> FinalSolution | None:
     """Reconstruct and re-check one searched path (see the module docstring). Tried in turn: the smoothed motion;
     the smoothed motion with the searched poses blended back in around the frames that failed; the searched
     poses. None if none passes the contact and dynamic test in every frame."""
     def attempt(q):
-        res, sliding = _evaluate_motion(problem, q, sol.c_mask, sol.c_local, ns, slide_speed)
-        return res, sliding
+        res = _evaluate_motion(problem, q, ns)
+        return res, res.c_sliding
 
     candidates = []
     if reconstruct:

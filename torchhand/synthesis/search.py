@@ -299,12 +299,15 @@ class _Search:
         q_prev = self.q_rest.expand(N, H, -1).clone()
         first = torch.zeros(N, dtype=torch.bool, device=device)
         weights = torch.ones(N, H, F, dtype=dtype, device=device)
+        K = sum(hd.num_links for hd in p.hands)
+        prev_mask = torch.zeros(N, K, dtype=torch.bool, device=device)   # hand contacts of the previous frame
         for i, (j, node, plan, wi) in enumerate(cand):
             if node.frames is None:
                 first[i] = True
             else:
                 q_prev[i] = node.frames["q"][-1]
                 was_on[i] = node.frames["seed_on"][-1]
+                prev_mask[i] = node.frames["c_mask"][-1]
                 zero = node.frames["seed_class"][-1] == FORCE_ZERO
                 if self.s.strategy in ("relocating", "mixed"):
                     weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
@@ -351,7 +354,7 @@ class _Search:
             guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
             lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
             res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
-                             weights[sel], settings=self.ns)
+                                weights[sel], settings=self.ns, prev_mask=prev_mask[sel])
             self.stats.nodes_tested += int(sel.numel())
             ok = res.feasible
             bad = sel[~ok]
@@ -370,6 +373,7 @@ class _Search:
             alive[bad] = False
             self.stats.fail_frames.extend((t0[bad] + k).tolist())
             q_prev[sel] = res.q
+            prev_mask[sel] = res.c_mask
             # store this frame's outputs for every candidate (rows of the ones not run stay unused)
             for key in _KEEP:
                 full = getattr(res, key)
