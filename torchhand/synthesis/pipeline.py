@@ -88,6 +88,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
+    ns = dataclasses.replace(ns, cone_tol=None)          # the solver's full accuracy for what is written
     first = evaluate_poses(problem, t, q, settings=ns)
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])

@@ -223,9 +223,13 @@ class _Search:
                     plan.append(node.template[gi])
                     continue
                 kind = self._choices(tree, node, h, f)
-                if gi in (resample or ()) and node.template is not None and node.template[gi][0] == kind \
-                        and kind == _STATIC and _rand(tree.gen) < 0.7:
+                informed = gi in (resample or ()) and node.template is not None
+                if informed and node.template[gi][0] == kind and kind == _STATIC and _rand(tree.gen) < 0.7:
                     kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
+                if informed and kind == _RELOCATE and _rand(tree.gen) < 0.5:
+                    kind = _FREE                       # a finger that failed to hold on: let it go
+                    plan.append((kind, -1, 0))
+                    continue
                 sample, land = -1, 0
                 if kind == _FREE and _rand(tree.gen) < (self.s.establish if establish is None else establish):
                     land = _randint(tree.gen, w if land_max is None else min(w, land_max + 1))
