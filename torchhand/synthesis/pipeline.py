@@ -88,7 +88,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
-    ns = dataclasses.replace(ns, cone_tol=None)          # the solver's full accuracy for what is written
+    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None)   # the solver's full accuracy for what is written
     first = evaluate_poses(problem, t, q, settings=ns)
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
@@ -186,6 +186,7 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
                           reserve_per_solution=0.06 * problem.T * problem.H if reconstruct else 0.0)
     t_search = time.perf_counter() - t_start - t_prep
+    paths = paths[:solutions]                 # the last round may have found more than were asked for
     finals, excluded = [], 0
     for i, path in enumerate(paths):
         report("reconstruct", solution=i, of=len(paths))
