@@ -142,7 +142,7 @@ def box_turn() -> Scene:
     return _scene("box-turn", _BOX_TURN, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
 
 
-_BOX_PICKUP = ("A 7 x 7 x 14 cm milk-box-like carton (0.3 kg) standing on the table is grasped from the side by one "
+_BOX_PICKUP = ("A 7 x 7 x 14 cm milk-box-like carton (0.3 kg) standing on the table is grasped from above by one "
                "right hand, lifted 12 cm, held and put back down.")
 
 
@@ -154,8 +154,9 @@ def box_pickup() -> Scene:
     hold = (_APPROACH, T - 1 - _APPROACH)
     lift = 0.12 * (_ramp(T, hold[0] + 4, 32) - _ramp(T, 42, hold[1] - 2))
     pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * lift, 0 * lift, z0 + lift], axis=-1))
-    # palm on the -y face, fingers along +x wrapping the far vertical edge, thumb up
-    grasp = _grasp((1, 0, 0), (0, -1, 0), (0.0, -0.035 - _GAP, 0.01))
+    # from above, on the top face: fingers along +x curl down the +x face, thumb and little finger pinch the
+    # y faces (a grasp from the side has nothing opposing the palm, which does not touch)
+    grasp = _grasp((1, 0, 0), (0, 0, 1), (-0.01, 0.0, 0.07 + _GAP))
     return _scene("box-pickup", _BOX_PICKUP, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
 
 
