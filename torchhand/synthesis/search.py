@@ -226,9 +226,10 @@ class _Search:
                 informed = gi in (resample or ()) and node.template is not None
                 if informed and node.template[gi][0] == kind and kind == _STATIC and _rand(tree.gen) < 0.7:
                     kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
-                if informed and kind == _RELOCATE and _rand(tree.gen) < 0.5:
-                    kind = _FREE                       # a finger that failed to hold on: let it go
-                    plan.append((kind, -1, 0))
+                idle = node.frames is not None and int(node.frames["seed_class"][-1, h, f]) == FORCE_ZERO
+                if informed and ((kind == _RELOCATE and _rand(tree.gen) < 0.5) or (idle and _rand(tree.gen) < 0.8)):
+                    # a finger that failed to hold on (more often one that carried no force): let it go
+                    plan.append((_FREE, -1, 0))
                     continue
                 sample, land = -1, 0
                 if kind == _FREE and _rand(tree.gen) < (self.s.establish if establish is None else establish):
