@@ -272,10 +272,8 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     g_world = g_world + s.push_margin * n_out
     g_target = torch.einsum("nfl,nfc->nlc", onehot, g_world)
     g_weight = onehot.sum(1)                                             # (N, L)
-    # a pose from scratch (first frame, landing fingers) may need to travel far: three times the iterations
-    iters = s.ik_iters * (3 if bool(lifted.all(-1).any()) else 1)
     q = _lm_solve(problem, hand, root, T_obj, T_inv, q0, lo, hi, q0, slot_link, g_local, g_target, g_weight,
-                  n_out, act, iters, s)
+                  n_out, act, s.ik_iters, s)
     poses = hand.forward_kinematics(q, root)
     pen = link_sample_penetration(poses, hand.sample_points, hand.sample_link, T_inv, problem.sdf.values,
                                   problem.sdf.origin, problem.sdf.voxel_size, corners=problem.sdf.corners)

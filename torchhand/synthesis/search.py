@@ -209,7 +209,7 @@ class _Search:
         return int(idx[_randint(tree.gen, idx.numel())])
 
     def _plan(self, tree: _Tree, node: _Node, w: int, resample=None, away=None, establish=None,
-              land_max=None, release_idle: float = 0.0) -> list:
+              land_max=None) -> list:
         """Per finger (kind, sample index or -1, first guided frame of the window) for a window of w frames
         starting after ``node``. A free finger that establishes contact does so at a uniformly drawn frame of the
         window (its initial frame, §4.2), on a pruned patch sample of that frame; a relocating finger lifts off
@@ -219,23 +219,16 @@ class _Search:
         for h in range(self.H):
             for f in range(self.F):
                 gi = h * self.F + f
-                idle = node.frames is not None and int(node.frames["seed_class"][-1, h, f]) == FORCE_ZERO \
-                    and bool(node.frames["seed_on"][-1, h, f])
                 if node.template is not None and resample is not None and gi not in resample:
-                    # after a kinematic failure, fingers that carry no force may let go too (a hand pulling away
-                    # has to release them all)
-                    if idle and _rand(tree.gen) < release_idle:
-                        plan.append((_FREE, -1, 0))
-                    else:
-                        plan.append(node.template[gi])
+                    plan.append(node.template[gi])
                     continue
                 kind = self._choices(tree, node, h, f)
                 informed = gi in (resample or ()) and node.template is not None
                 if informed and node.template[gi][0] == kind and kind == _STATIC and _rand(tree.gen) < 0.7:
                     kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
-                if informed and ((kind == _RELOCATE and _rand(tree.gen) < 0.5) or (idle and _rand(tree.gen) < 0.8)):
-                    # a finger that failed to hold on (more often one that carried no force): let it go
-                    plan.append((_FREE, -1, 0))
+                if informed and kind == _RELOCATE and _rand(tree.gen) < 0.5:
+                    kind = _FREE                       # a finger that failed to hold on: let it go
+                    plan.append((kind, -1, 0))
                     continue
                 sample, land = -1, 0
                 if kind == _FREE and _rand(tree.gen) < (self.s.establish if establish is None else establish):
@@ -262,7 +255,7 @@ class _Search:
                 continue
             cause, fingers, k_fail = node.fail
             if cause == CAUSE_KINEMATIC:
-                plans.append(self._plan(tree, node, w, resample=set(fingers), release_idle=0.5))
+                plans.append(self._plan(tree, node, w, resample=set(fingers)))
             elif cause == CAUSE_FINGERS:
                 a, b = fingers
                 mover, other = (a, b) if _rand(tree.gen) < 0.5 else (b, a)
