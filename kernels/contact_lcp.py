@@ -38,6 +38,8 @@ from typing import NamedTuple
 
 import torch
 
+from .frames import tangent_frame
+
 from .lcp import lcp_residual, lcp_tolerances
 from .status import SolverStatus
 
@@ -116,12 +118,7 @@ def friction_pyramid(d0: torch.Tensor, m: int) -> torch.Tensor:
     if int(m) < 1:
         raise ValueError(f"friction_pyramid: m must be >= 1, got {m}")
     e0 = d0 / torch.linalg.vector_norm(d0, dim=-1, keepdim=True).clamp_min(torch.finfo(d0.dtype).tiny)
-    x, y, z = e0.unbind(-1)
-    sign = torch.where(z >= 0, torch.ones_like(z), -torch.ones_like(z))
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    t1 = torch.stack([1 + sign * x * x * a, sign * b, -sign * x], -1)
-    t2 = torch.stack([b, sign + y * y * a, -y], -1)
+    t1, t2 = tangent_frame(e0)
     cols = [e0]
     for j in range(int(m)):
         th = math.pi * j / int(m)

@@ -40,6 +40,7 @@ import torch
 from ._cone_admm import AdmmSettings, admm, build_problem, certificate_margin
 from ._cone_polish import warm_point
 from ._cone_proj import project_cone
+from .frames import tangent_frame
 from .status import SolverStatus
 
 __all__ = ["ConeResult", "ConeTolerances", "cone_tolerances", "solve_friction_cone"]
@@ -100,17 +101,6 @@ def _check_shape(x, name: str, shape: tuple, floating: bool = True) -> None:
         raise ValueError(f"solve_friction_cone: {name} must have shape {tuple(shape)}, got {tuple(x.shape)}")
     if floating and not x.is_floating_point():
         raise ValueError(f"solve_friction_cone: {name} must be floating point, got {x.dtype}")
-
-
-def _tangent_frame(e0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two unit vectors completing the unit vectors e0 (..., 3) to a right-handed frame (Duff et al. 2017)."""
-    x, y, z = e0.unbind(-1)
-    sign = torch.where(z >= 0, torch.ones_like(z), -torch.ones_like(z))
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    t1 = torch.stack([1 + sign * x * x * a, sign * b, -sign * x], -1)
-    t2 = torch.stack([b, sign + y * y * a, -y], -1)
-    return t1, t2
 
 
 def _skew(p: torch.Tensor) -> torch.Tensor:
@@ -205,7 +195,7 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
         ray = ray / torch.linalg.vector_norm(ray, dim=-1, keepdim=True)
         e0 = torch.where(sliding[..., None], ray, nn)
         mu_eff = torch.where(sliding, zero, mu_c)
-    t1, t2 = _tangent_frame(e0)
+    t1, t2 = tangent_frame(e0)
     R = torch.stack([e0, t1, t2], -1)                       # (B, K, 3, 3), columns = local axes in world
 
     # --- normalisation ---------------------------------------------------------------------------------------
