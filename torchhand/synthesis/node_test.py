@@ -29,9 +29,10 @@ from dataclasses import dataclass
 import torch
 
 from torchhand.kernels.friction_cone import solve_friction_cone
-from torchhand.kernels.penetration import capsule_interpenetration, link_sample_penetration
+from torchhand.kernels.penetration import capsule_interpenetration
 from torchhand.kernels.status import SolverStatus
 
+from ..collision import hand_object_penetration
 from .problem import SynthesisProblem
 
 __all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points", "CAUSE_NONE", "CAUSE_KINEMATIC",
@@ -275,8 +276,7 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     q = _lm_solve(problem, hand, root, T_obj, T_inv, q0, lo, hi, q0, slot_link, g_local, g_target, g_weight,
                   n_out, act, s.ik_iters, s)
     poses = hand.forward_kinematics(q, root)
-    pen = link_sample_penetration(poses, hand.sample_points, hand.sample_link, T_inv, problem.sdf.values,
-                                  problem.sdf.origin, problem.sdf.voxel_size, corners=problem.sdf.corners)
+    pen = hand_object_penetration(hand, poses, problem.sdf, T_obj)
     tip_link = guides.link[:, h]
     T_g = poses.gather(1, tip_link[..., None, None].expand(N, F, 4, 4))
     err = (_transform(T_g, guides.local[:, h]) - g_world).norm(dim=-1) * act.to(dtype)
@@ -300,7 +300,6 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
     """
     kin = [_hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings) for h in range(problem.H)]
     # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
-    N = t.shape[0]
     f64 = torch.float64
     slide_world = _rotate(problem.object_pose[t][:, None, None], guides.slide).to(f64)     # (N, H, F, 3)
     hand_slide = []
@@ -324,9 +323,7 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
     for h in range(problem.H):
         hand = problem.hands[h]
         poses = hand.forward_kinematics(q[:, h], problem.root[h, t])
-        pen = link_sample_penetration(poses, hand.sample_points, hand.sample_link, problem.object_inv[t],
-                                      problem.sdf.values, problem.sdf.origin, problem.sdf.voxel_size,
-                                      corners=problem.sdf.corners)
+        pen = hand_object_penetration(hand, poses, problem.sdf, problem.object_pose[t])
         kin.append((q[:, h], poses, q.new_zeros(t.shape[0], hand.num_fingers), pen))
     K = sum(hd.num_links for hd in problem.hands)
     hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
@@ -458,7 +455,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
 def _seeds(problem, t, c_mask, c_local, c_point, c_normal, c_force, s: NodeTestSettings) -> dict:
     N = t.shape[0]
     H, F = problem.H, problem.F
-    device, dtype = c_point.device, c_point.dtype
+    device = c_point.device
     T_inv = problem.object_inv[t]
     out = {k: [] for k in ("seed_on", "seed_link", "seed_local", "seed_obj", "seed_class", "seed_tdir")}
     for h in range(H):

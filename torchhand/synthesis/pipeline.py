@@ -72,7 +72,7 @@ class SynthesisResult:
     timings: dict = field(default_factory=dict)
 
 
-def tree_index_put(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
+def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
     """``res`` with the rows ``index`` (n,) replaced by those of ``values`` (n rows)."""
     def put(a, b):
         out = a.clone()
@@ -98,7 +98,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
         # a force solve that stopped at its iteration limit gets a longer one before the frame counts as failed
         again = evaluate_poses(problem, t[retry], q[retry], q_prev[retry], prev_mask[retry],
                                settings=dataclasses.replace(ns, cone_iters=20000))
-        res = tree_index_put(res, retry, again)
+        res = _rows_replaced(res, retry, again)
     return res
 
 

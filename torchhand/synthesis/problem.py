@@ -112,12 +112,11 @@ def required_wrench(object_pose: torch.Tensor, com_local: torch.Tensor, mass: fl
     if T >= 2:
         # omega at the midpoints t + 1/2 from R_{t+1} R_t^T (world-frame increments), then averaged to frames
         dR = R[1:] @ R[:-1].transpose(-1, -2)
-        w_mid = rotation_matrix_to_axis_angle(dR.float() if dR.dtype == torch.float16 else dR) * fps
+        w_mid = rotation_matrix_to_axis_angle(dR) * fps
         omega[1:-1] = 0.5 * (w_mid[1:] + w_mid[:-1])
         omega[0], omega[-1] = w_mid[0], w_mid[-1]
-        alpha_mid = (w_mid[1:] - w_mid[:-1]) * fps if T >= 3 else w_mid[:0]
         if T >= 3:
-            alpha[1:-1] = alpha_mid
+            alpha[1:-1] = (w_mid[1:] - w_mid[:-1]) * fps
             alpha[0], alpha[-1] = alpha[1], alpha[-2]
     I_w = R @ inertia @ R.transpose(-1, -2)
     Iw = (I_w @ omega[..., None]).squeeze(-1)

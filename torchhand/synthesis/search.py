@@ -29,7 +29,7 @@ import torch
 
 from .initial import InitialSamples
 from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
-                        FrameResult, Guides, NodeTestSettings, pad_points, run_node_test)
+                        Guides, NodeTestSettings, pad_points, run_node_test)
 from .problem import SynthesisProblem
 
 __all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
@@ -66,7 +66,6 @@ class SearchStats:
     time_s: float = 0.0
     restarts: int = 0
     deepest_frame: int = 0           # the furthest frame any path reached
-    fail_frames: list = field(default_factory=list)   # frame of every dead end (for the report's histogram)
 
 
 @dataclass(frozen=True)
@@ -170,9 +169,6 @@ class _Search:
         return max(1, min(w, self.T - t0))
 
     # --- candidate generation (§4.2 sampling rules, §5 preferences and informed backtracking) ----------------
-    def _last(self, node: _Node, key: str):
-        return None if node.frames is None else node.frames[key][-1]
-
     def _choices(self, tree: _Tree, node: _Node, h: int, f: int) -> int:
         """Strategy of finger (h, f) for the next window from its seed's force state."""
         g, pref = tree.gen, self.s.strategy
@@ -337,7 +333,6 @@ class _Search:
         fail_k = torch.zeros(N, dtype=torch.long, device=device)
         fail_fingers = [None] * N
         wmax = int(w.max())
-        idx_all = torch.arange(N, device=device)
         for k in range(wmax):
             run = alive & (k < w)
             sel = run.nonzero().squeeze(-1)
@@ -375,7 +370,6 @@ class _Search:
                 elif res.cause[r] == CAUSE_FINGERS:
                     fail_fingers[gi] = res.pair[r].tolist()
             alive[bad] = False
-            self.stats.fail_frames.extend((t0[bad] + k).tolist())
             q_prev[sel] = res.q
             prev_mask[sel] = res.c_mask
             # store this frame's outputs for every candidate (rows of the ones not run stay unused)
@@ -391,10 +385,7 @@ class _Search:
             g_frames["guide_link"].append(link.clone())
             g_frames["guide_local"].append(local.clone())
         # regroup per job
-        out = [([], None) for _ in jobs]
-        results = []
-        for j in range(len(jobs)):
-            results.append({"feasible": [], "fail": None, "template": None})
+        results = [{"feasible": [], "fail": None, "template": None} for _ in jobs]
         for i, (j, node, plan, wi) in enumerate(cand):
             if bool(alive[i]):
                 fr = {key: torch.stack([frames[key][k][i] for k in range(wi)]) for key in _KEEP}
@@ -403,7 +394,6 @@ class _Search:
             elif results[j]["fail"] is None:
                 results[j]["fail"] = (int(fail_cause[i]), fail_fingers[i] or [], int(fail_k[i]))
                 results[j]["template"] = plan
-        del out, idx_all
         return results
 
     # --- main loop --------------------------------------------------------------------------------------------
@@ -438,11 +428,8 @@ class _Search:
             if progress is not None:
                 progress(self)
         self.stats.time_s = time.perf_counter() - start
-        self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes_list())
+        self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
         return [self._solution(tree_i, path) for tree_i, path in self.solutions]
-
-    def solution_nodes_list(self):
-        return list(self.solution_nodes)
 
     def _frontier(self, tree: _Tree):
         """The node this tree expands next, after backtracking and consuming pending siblings; None if it
