@@ -183,10 +183,18 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     eye = torch.eye(D, dtype=q.dtype, device=q.device)
     reg = s.reg_weight ** 2
     R_inv, t_inv = T_inv[:, None, :3, :3], T_inv[:, None, :3, 3]
-    # Levenberg–Marquardt with per-candidate damping: a trial point whose cost rises is rejected (back to the
-    # best point, damping x 10), an accepted one lowers the damping; the projection keeps q inside the box.
-    lam = torch.full((N, 1, 1), 1e-4, dtype=q.dtype, device=q.device)
-    best_q, best_cost = q, torch.full((N,), float("inf"), dtype=q.dtype, device=q.device)
+    # The problem separates by finger: every joint moves one finger's links, and every residual depends on one
+    # finger's joints (a guiding slot on its link, its nail, its capsule points; the palm's slot is constant).
+    # So damping and step acceptance are per finger (group F collects what belongs to no finger): one finger's
+    # rejected step does not hold back the others, as F independent solves would behave, in one batched solve.
+    G = F + 1
+    lf = hand.link_finger
+    res_group = torch.cat([torch.where(lf[slot_link] >= 0, lf[slot_link], F).repeat_interleave(3),
+                           torch.arange(F, device=q.device), torch.where(lf[ax_link] >= 0, lf[ax_link], F)])
+    jf = hand.link_finger[hand.chain.joint_link]
+    joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
+    lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
+    best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
     best_A = best_g = None
     for it in range(iters + 1):
         local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
@@ -208,17 +216,23 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         Ja = -(g_world.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * on[..., None]   # (N, A, D)
         Jf = torch.cat([Jw.reshape(N, -1, D), Jn, Ja], 1)
         rf = torch.cat([r.reshape(N, -1), rn, ra], 1)
-        cost = (rf * rf).sum(-1) + reg * ((q - anchor) ** 2).sum(-1)
+        cost = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, res_group, rf * rf)
+        cost = cost.index_add_(1, joint_group, reg * (q - anchor) ** 2)   # (N, G)
         A = Jf.transpose(1, 2) @ Jf + reg * eye
         g = (Jf.transpose(1, 2) @ rf.unsqueeze(-1)).squeeze(-1) + reg * (q - anchor)
-        better = cost <= best_cost
-        b3 = better[:, None, None]
-        lam = torch.where(b3, lam / 3, lam * 10).clamp(1e-9, 1e3)
+        better = cost <= best_cost                                          # (N, G)
+        lam = torch.where(better, lam / 3, lam * 10).clamp(1e-9, 1e3)
         best_cost = torch.where(better, cost, best_cost)
-        best_q = torch.where(better[:, None], q, best_q)
-        best_A = A if best_A is None else torch.where(b3, A, best_A)
-        best_g = g if best_g is None else torch.where(better[:, None], g, best_g)
-        Ad = best_A + (lam * best_A.diagonal(dim1=1, dim2=2).mean(-1, keepdim=True)[..., None] + s.damping) * eye
+        bj = better[:, joint_group]                                         # (N, D) per joint
+        best_q = torch.where(bj, q, best_q)
+        # A is block-diagonal by finger, so replacing whole rows keeps each finger's block consistent
+        best_A = A if best_A is None else torch.where(bj[..., None], A, best_A)
+        best_g = g if best_g is None else torch.where(bj, g, best_g)
+        diag = best_A.diagonal(dim1=1, dim2=2)                              # (N, D)
+        scale = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, joint_group, diag)
+        count = torch.zeros(G, dtype=q.dtype, device=q.device).index_add_(0, joint_group, torch.ones_like(diag[0]))
+        damp = (lam * scale / count.clamp_min(1))[:, joint_group] + s.damping     # (N, D)
+        Ad = best_A + torch.diag_embed(damp)
         L, _ = torch.linalg.cholesky_ex(Ad)
         step = torch.cholesky_solve(-best_g.unsqueeze(-1), L).squeeze(-1)
         q = torch.minimum(torch.maximum(best_q + step, lo), hi)
@@ -273,10 +287,41 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     g_world = g_world + s.push_margin * n_out
     g_target = torch.einsum("nfl,nfc->nlc", onehot, g_world)
     g_weight = onehot.sum(1)                                             # (N, L)
-    q = _lm_solve(problem, hand, root, T_obj, T_inv, q0, lo, hi, q0, slot_link, g_local, g_target, g_weight,
-                  n_out, act, s.ik_iters, s)
+
+    def solve(rows, start):
+        return _lm_solve(problem, hand, root[rows], T_obj[rows], T_inv[rows], start, lo[rows], hi[rows], start,
+                         slot_link, g_local[rows], g_target[rows], g_weight[rows], n_out[rows], act[rows],
+                         s.ik_iters, s)
+
+    every = torch.arange(N, device=device)
+    q = solve(every, q0)
     poses = hand.forward_kinematics(q, root)
     pen = hand_object_penetration(hand, poses, problem.sdf, T_obj)
+    # A free finger that still penetrates started from a pose the object's motion brought into it (the rest pose
+    # of a first frame, or the way toward rest), and Levenberg-Marquardt from inside a thin part (a mug handle)
+    # finds no way out. Those rows are solved once more with the free fingers starting where nothing pulls them
+    # into the object: the previous pose, or on a first frame the open hand. Fingers are independent in the IK
+    # (every joint belongs to one finger), so each finger keeps the attempt in which it penetrates least.
+    lf = hand.link_finger
+    finger_depth = torch.zeros(N, F, dtype=dtype, device=device).scatter_reduce(
+        1, lf.clamp_min(0).expand(N, L), (-pen.deepest_value).clamp_min(0) * (lf >= 0).to(dtype), reduce="amax")
+    retry = ((finger_depth > s.pen_tol) & ~act).any(-1).nonzero().squeeze(-1)
+    if retry.numel():
+        open_q = torch.zeros(D, dtype=dtype, device=device).clamp(lim[:, 0], lim[:, 1])
+        start_free = torch.where(lifted[retry], open_q.expand(retry.numel(), D), q_prev[retry])
+        start = torch.where(guided_joint[retry], q0[retry], start_free.clamp(lo[retry], hi[retry]))
+        q2 = solve(retry, start)
+        poses2 = hand.forward_kinematics(q2, root[retry])
+        pen2 = hand_object_penetration(hand, poses2, problem.sdf, T_obj[retry])
+        depth2 = torch.zeros(retry.numel(), F, dtype=dtype, device=device).scatter_reduce(
+            1, lf.clamp_min(0).expand(retry.numel(), L), (-pen2.deepest_value).clamp_min(0) * (lf >= 0).to(dtype),
+            reduce="amax")
+        better = (depth2 < finger_depth[retry]) & ~act[retry]                          # (R, F)
+        take = better.gather(1, joint_finger.clamp_min(0).expand(retry.numel(), D)) & (joint_finger >= 0)
+        q = q.clone()
+        q[retry] = torch.where(take, q2, q[retry])
+        poses = hand.forward_kinematics(q, root)
+        pen = hand_object_penetration(hand, poses, problem.sdf, T_obj)
     tip_link = guides.link[:, h]
     T_g = poses.gather(1, tip_link[..., None, None].expand(N, F, 4, 4))
     err = (_transform(T_g, guides.local[:, h]) - g_world).norm(dim=-1) * act.to(dtype)

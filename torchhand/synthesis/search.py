@@ -66,6 +66,7 @@ class SearchStats:
     time_s: float = 0.0
     restarts: int = 0
     deepest_frame: int = 0           # the furthest frame any path reached
+    rejections_by_frame: list = field(default_factory=list)   # per frame [kinematic, finger_finger, dynamic]
 
 
 @dataclass(frozen=True)
@@ -142,7 +143,7 @@ class _Search:
         self.T = problem.T
         self.window = max(1.0, self.T / max(s.epsilon, 1e-9))
         self.trees = [_Tree(i, seed * 1000 + i) for i in range(s.trees)]
-        self.stats = SearchStats()
+        self.stats = SearchStats(rejections_by_frame=[[0, 0, 0] for _ in range(self.T)])
         self.solutions: list[tuple[int, list[_Node]]] = []
         self.uid = 0
         self.solution_nodes: set = set()
@@ -242,6 +243,25 @@ class _Search:
                 plan.append((kind, sample, land))
         return plan
 
+    def _release(self, node: _Node, failed: set) -> list:
+        """After a kinematic failure: the fingers that failed and every finger that carried no force at the end of
+        ``node`` let go for the next window; the others keep their contacts (static, as the failed plan had them
+        or as their seeds are). A hand that leaves the object (a retreat) needs all its idle fingers released in
+        one window, which independent draws per finger almost never give."""
+        plan = []
+        for h in range(self.H):
+            for f in range(self.F):
+                gi = h * self.F + f
+                on = bool(node.frames["seed_on"][-1, h, f])
+                idle = not on or int(node.frames["seed_class"][-1, h, f]) == FORCE_ZERO
+                if gi in failed or idle:
+                    plan.append((_FREE, -1, 0))
+                elif node.template is not None and node.template[gi][0] in (_STATIC, _SLIDE):
+                    plan.append(node.template[gi])
+                else:
+                    plan.append((_STATIC, -1, 0))
+        return plan
+
     def _informed(self, tree: _Tree, node: _Node, w: int) -> list:
         """Plans of one expansion: informed by the last failure where there is one, fresh otherwise."""
         plans, seen = [], set()
@@ -250,7 +270,9 @@ class _Search:
                 plans.append(self._plan(tree, node, w))
                 continue
             cause, fingers, k_fail = node.fail
-            if cause == CAUSE_KINEMATIC:
+            if cause == CAUSE_KINEMATIC and i == 0 and node.frames is not None:
+                plans.append(self._release(node, set(fingers)))
+            elif cause == CAUSE_KINEMATIC:
                 plans.append(self._plan(tree, node, w, resample=set(fingers)))
             elif cause == CAUSE_FINGERS:
                 a, b = fingers
@@ -362,6 +384,8 @@ class _Search:
                                    (CAUSE_DYNAMIC, "dynamic")):
                 self.stats.rejections[name] += int((res.cause == cause_id).sum())
             fail_cause[bad] = res.cause[~ok]
+            for tf, c in zip((t0[bad] + k).tolist(), res.cause[~ok].tolist()):
+                self.stats.rejections_by_frame[tf][c - 1] += 1
             fail_k[bad] = k
             for r in (~ok).nonzero().squeeze(-1).tolist():
                 gi = sel[r].item()
