@@ -114,7 +114,7 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
                         mask: torch.Tensor | None = None, weights: torch.Tensor | None = None,
                         sliding_dir: torch.Tensor | None = None, warm_start: torch.Tensor | None = None,
                         tol: float | None = None, max_iters: int | None = None,
-                        check_every: int = 10) -> ConeResult:
+                        check_every: int = 10, polish: bool = True) -> ConeResult:
     """Minimum weighted normal force contact forces that produce a required wrench (Ye & Liu 2012, Eqs. 4-8).
 
     Args:
@@ -130,6 +130,8 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
         tol: relative tolerance on the wrench residual and the duality gap; default per dtype (``cone_tolerances``)
         max_iters: iteration limit per problem; default per dtype
         check_every: iterations between convergence checks (the only host syncs)
+        polish: Newton-polish the ADMM fixed point (exact active sets, faster to tight tolerances); without it
+            plain ADMM, cheaper per check and enough for a feasibility verdict at a loose ``tol``
 
     Returns:
         :class:`ConeResult`. Problems with NaN/inf in an active entry (or a zero normal, mu < 0, weight < 0) are
@@ -220,7 +222,8 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
     range_infeasible = (range_infeasible | (certificate_margin(prob.b, prob) <= tab.eps_cert)) & ~invalid
 
     # --- warm start (world forces -> normalised local coordinates) --------------------------------------------
-    settings = AdmmSettings(eps=eps, eps_cert=tab.eps_cert, max_iters=max_iters, check_every=check_every)
+    settings = AdmmSettings(eps=eps, eps_cert=tab.eps_cert, max_iters=max_iters, check_every=check_every,
+                            polish=bool(polish))
     if warm_start is not None:
         # Parent forces -> local, normalised, with a dual fitted to them; polished before the first iteration.
         z0 = (R.transpose(-1, -2) @ torch.where(act[..., None], warm_start, zero)[..., None]).squeeze(-1)

@@ -91,6 +91,9 @@ def link_sample_penetration(
     if tuple(T_obj_world.shape) != (b, 4, 4):
         raise ValueError(f"T_obj_world: expected shape ({b}, 4, 4), got {tuple(T_obj_world.shape)}")
 
+    if s and bool((sample_link[1:] >= sample_link[:-1]).all()):
+        return _sorted_link_penetration(link_poses, sample_points, sample_link, T_obj_world, sdf_values,
+                                        sdf_origin, voxel_size, corners)
     R_link = link_poses[:, sample_link, :3, :3]                    # (B, S, 3, 3)
     p_world = (R_link @ sample_points.unsqueeze(-1)).squeeze(-1) + link_poses[:, sample_link, :3, 3]
     R_ow, t_ow = T_obj_world[:, None, :3, :3], T_obj_world[:, None, :3, 3]
@@ -113,6 +116,51 @@ def link_sample_penetration(
     gather3 = safe.unsqueeze(-1).expand(b, n_links, 3)
     deepest_point = p_world.detach().gather(1, gather3) * mask
     g = grad_obj.gather(1, gather3)
+    n_world = (T_obj_world[:, None, :3, :3].detach().transpose(-1, -2) @ g.unsqueeze(-1)).squeeze(-1)
+    norm = torch.linalg.vector_norm(n_world, dim=-1, keepdim=True)
+    deepest_normal = n_world / norm.clamp_min(torch.finfo(sd.dtype).tiny) * mask
+    return PenetrationResult(sd, deepest_value, deepest_index, deepest_point, deepest_normal)
+
+
+def _sorted_link_penetration(link_poses, sample_points, sample_link, T_obj_world, sdf_values, sdf_origin,
+                             voxel_size, corners) -> PenetrationResult:
+    """:func:`link_sample_penetration` for samples stored link by link (``sample_link`` non-decreasing, as hand
+    models store them): each link's samples are a contiguous slice, transformed by one batched matrix product
+    with the composed object-from-link pose, and reduced per slice; no (B, S, 3, 3) gather of rotations and no
+    scatter over all samples. Same results (ties of the minimum resolve to the first sample, as there)."""
+    b, n_links = link_poses.shape[:2]
+    s = sample_points.shape[0]
+    M = T_obj_world[:, None] @ link_poses                          # (B, L, 4, 4) object <- link
+    counts = torch.bincount(sample_link, minlength=n_links).tolist()
+    chunks, start = [], 0
+    for link, n in enumerate(counts):
+        if n:
+            pts = sample_points[start:start + n]                   # (n, 3)
+            chunks.append(pts @ M[:, link, :3, :3].transpose(-1, -2) + M[:, link, None, :3, 3])
+        start += n
+    p_obj = torch.cat(chunks, 1)                                   # (B, S, 3)
+    sd, grad_obj = sdf_trilinear_with_grad(sdf_values, sdf_origin, voxel_size, p_obj, corners=corners)
+    values, index, start = [], [], 0
+    inf = torch.full((b,), float("inf"), dtype=sd.dtype, device=sd.device)
+    minus = torch.full((b,), -1, dtype=torch.long, device=sd.device)
+    for n in counts:
+        if n:
+            v, i = sd[:, start:start + n].min(dim=1)
+            values.append(v)
+            index.append(i + start)
+        else:
+            values.append(inf)
+            index.append(minus)
+        start += n
+    deepest_value = torch.stack(values, 1)                         # (B, L)
+    deepest_index = torch.stack(index, 1)
+    has = deepest_index >= 0
+    safe = deepest_index.clamp_min(0)
+    mask = has.unsqueeze(-1).to(sd.dtype)
+    local = sample_points[safe]                                    # (B, L, 3)
+    deepest_point = ((link_poses[..., :3, :3].detach() @ local.unsqueeze(-1)).squeeze(-1)
+                     + link_poses[..., :3, 3].detach()) * mask
+    g = grad_obj.gather(1, safe.unsqueeze(-1).expand(b, n_links, 3))
     n_world = (T_obj_world[:, None, :3, :3].detach().transpose(-1, -2) @ g.unsqueeze(-1)).squeeze(-1)
     norm = torch.linalg.vector_norm(n_world, dim=-1, keepdim=True)
     deepest_normal = n_world / norm.clamp_min(torch.finfo(sd.dtype).tiny) * mask

@@ -88,18 +88,18 @@ def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024
 
 
 def bench_scenes(scenes=SCENES, budget: float = 120.0, seed: int = 0, mug: str | None = None,
-                 mug_frames: str = "610:670") -> list[dict]:
+                 mug_frames: str = "614:674", mug_slide_speed: float = 0.05) -> list[dict]:
     from torchhand.cli import main as cli
     from torchhand.synthesis.check import LIMITS, check_result
 
     rows = []
-    jobs = [(s, s, None) for s in scenes]
+    jobs = [(s, s, None, []) for s in scenes]
     if mug:
-        jobs.append(("manipnet-mug " + mug_frames, mug, mug_frames))
-    for label, scene, frames in jobs:
+        jobs.append((f"manipnet-mug {mug_frames}", mug, mug_frames, ["--slide-speed", str(mug_slide_speed)]))
+    for label, scene, frames, extra in jobs:
         out = tempfile.mkdtemp(prefix="bench-synth-")
         argv = ["synthesize", scene, "--out", out, "--time-budget", str(budget), "--seed", str(seed),
-                "--no-progress"] + (["--frames", frames] if frames else [])
+                "--no-progress"] + (["--frames", frames] if frames else []) + extra
         t0 = time.perf_counter()
         cli(argv)
         wall = time.perf_counter() - t0
@@ -107,7 +107,7 @@ def bench_scenes(scenes=SCENES, budget: float = 120.0, seed: int = 0, mug: str |
         reports = check_result(out)
         ok = all(r[k] <= v for r in reports for k, v in LIMITS.items())
         worst = {k: max((r[k] for r in reports), default=0.0) for k in LIMITS}
-        rows.append({"scene": label, "epsilon": stats["epsilon"], "T": stats["T"], "time_s": wall,
+        rows.append({"scene": label, "seed": seed, "epsilon": stats["epsilon"], "T": stats["T"], "time_s": wall,
                      "solutions": stats["solutions"], "dead_ends": stats["dead_ends"],
                      "total_frames": stats["total_frames"], "success_frames": stats["success_frames"],
                      "success_ratio": stats["success_ratio"], "solution_ratio": stats["solution_ratio"],
@@ -128,8 +128,10 @@ def main(argv=None) -> int:
     p.add_argument("--budget", type=float, default=120.0, help="time budget per scene, seconds")
     p.add_argument("--scenes", nargs="+", default=list(SCENES))
     p.add_argument("--mug", help="a scene directory imported from ManipNet's mug1 (adds a 2 s segment)")
-    p.add_argument("--mug-frames", default="610:670")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--mug-frames", default="614:674", help="scene frames of the segment (default 614:674, 2 s)")
+    p.add_argument("--mug-slide-speed", type=float, default=0.05,
+                   help="--slide-speed of the mocap segment (default 0.05 m/s)")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one run per scene and seed (default 0)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     out = {"machine": machine(), "command": " ".join(sys.argv)}
@@ -141,7 +143,8 @@ def main(argv=None) -> int:
                            "vs_paper", "feasible_frac"])
         out["nodes"] = rows
     if a.suite in ("scenes", "all"):
-        rows = bench_scenes(a.scenes, a.budget, a.seed, a.mug, a.mug_frames)
+        rows = [r for seed in a.seeds
+                for r in bench_scenes(a.scenes, a.budget, seed, a.mug, a.mug_frames, a.mug_slide_speed)]
         print("\n[scenes: Ye & Liu Table 1 columns]")
         print_table(rows, list(rows[0].keys()))
         out["scenes"] = rows

@@ -248,3 +248,34 @@ def test_capsule_interpenetration_bad_input():
         capsule_interpenetration(link_poses, a, a, r[:2], pairs)
     with pytest.raises(ValueError, match="pairs"):
         capsule_interpenetration(link_poses, a, a, r, pairs.float())
+
+
+def test_sorted_samples_path_matches_general_path():
+    """Hand models store samples link by link, which takes the per-link fast path; a shuffled copy of the same
+    samples takes the general gather/scatter path. Both must give the same distances and deepest samples."""
+    import trimesh
+
+    from torchhand.hand import default_hand
+    from torchhand.sdf import SDFGrid
+
+    hand = default_hand(dtype=torch.float64)
+    sdf = SDFGrid.from_mesh(trimesh.creation.box((0.08, 0.06, 0.05)), 0.002).to("cpu", torch.float64)
+    gen = torch.Generator().manual_seed(3)
+    B = 12
+    q = hand.random_q(B, gen)
+    root = torch.eye(4, dtype=torch.float64).expand(B, 4, 4).clone()
+    root[:, :3, 3] = 0.04 * torch.randn(B, 3, generator=gen, dtype=torch.float64)
+    poses = hand.forward_kinematics(q, root)
+    T_inv = torch.eye(4, dtype=torch.float64).expand(B, 4, 4).clone()
+    assert bool((hand.sample_link[1:] >= hand.sample_link[:-1]).all())
+    perm = torch.randperm(hand.sample_link.numel(), generator=gen)
+    fast = link_sample_penetration(poses, hand.sample_points, hand.sample_link, T_inv, sdf.values, sdf.origin,
+                                   sdf.voxel_size, corners=sdf.corners)
+    slow = link_sample_penetration(poses, hand.sample_points[perm], hand.sample_link[perm], T_inv, sdf.values,
+                                   sdf.origin, sdf.voxel_size, corners=sdf.corners)
+    assert (fast.deepest_value < 0).any(), "the poses should put some links inside the box"
+    torch.testing.assert_close(fast.sd, slow.sd[:, torch.argsort(perm)])
+    torch.testing.assert_close(fast.deepest_value, slow.deepest_value)
+    torch.testing.assert_close(fast.deepest_point, slow.deepest_point)
+    torch.testing.assert_close(fast.deepest_normal, slow.deepest_normal)
+    assert torch.equal(perm[slow.deepest_index], fast.deepest_index)

@@ -32,6 +32,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strategy", default="mixed", choices=["static", "sliding", "relocating", "mixed"],
                    help="manipulation-strategy preference (default mixed)")
     p.add_argument("--frames", metavar="A:B", help="synthesize frames A <= t < B of the scene only")
+    p.add_argument("--slide-speed", type=float, default=0.02, metavar="M_PER_S",
+                   help="a contact held over two frames whose hand point moves faster than this on the object "
+                        "slides (force on its friction cone's boundary); motion capture, whose wrist drifts by "
+                        "millimetres per frame against the object, needs about 0.05 (default 0.02)")
+    p.add_argument("--smooth", type=float, default=0.0, metavar="SEC",
+                   help="low-pass filter the object and wrist trajectories first (Gaussian, standard deviation "
+                        "in seconds; 0.05 suits 30 fps motion capture; default 0: as given)")
     p.add_argument("--trees", type=int, default=16, help="search trees grown in parallel (default 16)")
     p.add_argument("--candidates", type=int, default=16, help="candidates tested per expansion (default 16)")
     p.add_argument("--no-reconstruct", action="store_true", help="write the searched poses without smoothing")
@@ -56,6 +63,7 @@ def run(args) -> int:
 
     from ..scene import load_scene
     from ..synthesis.output import write_result
+    from ..synthesis.node_test import NodeTestSettings
     from ..synthesis.pipeline import synthesize
 
     if args.device == "cuda" and not torch.cuda.is_available():
@@ -64,9 +72,12 @@ def run(args) -> int:
                              ("--candidates", args.candidates, 1)):
         if value < low:
             raise InputValueError(f"{name}: expected an integer >= {low}, got {value}")
-    if not args.time_budget > 0 or not args.epsilon > 0:
-        raise InputValueError("--time-budget and --epsilon must be positive")
+    if not args.time_budget > 0 or not args.epsilon > 0 or not args.slide_speed > 0:
+        raise InputValueError("--time-budget, --epsilon and --slide-speed must be positive")
+    if not args.smooth >= 0:
+        raise InputValueError(f"--smooth: expected seconds >= 0, got {args.smooth}")
     scene = load_scene(args.scene)        # before anything is written: a bad scene leaves no output behind
+    scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
     if args.frames:
         scene = scene.with_frames(*_frames(args.frames, scene.T))
     bar = tqdm(total=round(args.time_budget), unit="s", desc="synthesize", disable=True if args.no_progress else None,
@@ -85,7 +96,8 @@ def run(args) -> int:
     result = synthesize(scene, solutions=args.solutions, time_budget=args.time_budget, seed=args.seed,
                         epsilon=args.epsilon, strategy=args.strategy, device=args.device,
                         dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
-                        reconstruct=not args.no_reconstruct, progress=progress)
+                        reconstruct=not args.no_reconstruct, progress=progress,
+                        node_settings=NodeTestSettings(slide_speed=args.slide_speed))
     bar.close()
     write_result(result, scene, args.out, strategy=args.strategy, seed=args.seed)
     st = result.stats
@@ -98,6 +110,13 @@ def run(args) -> int:
         print(f"no feasible motion found within {args.time_budget:g} s: the furthest any path got was frame "
               f"{st.deepest_frame} of {scene.T}. Try a longer --time-budget, another --seed, or check that the "
               f"wrists can reach the object (torchhand inspect {args.scene}).", file=sys.stderr)
+        worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
+        causes = ("kinematic", "finger-finger", "dynamic")
+        where = ", ".join(f"frame {t}: {sum(st.rejections_by_frame[t])} ("
+                          f"{causes[max(range(3), key=lambda c: st.rejections_by_frame[t][c])]} most)"
+                          for t in worst if sum(st.rejections_by_frame[t]))
+        if where:
+            print(f"most rejections at {where} (stats.json: rejections_by_frame).", file=sys.stderr)
     print(f"wrote {args.out}/scene/, {args.out}/hand.xml, {args.out}/stats.json, {n} solution(s) in "
           f"{args.out}/solutions/")
     return 0 if n else 1

@@ -85,6 +85,9 @@ class NodeTestSettings:
     slide_speed: float = 0.02      # a held contact moving on the object faster than this slides, m/s
     cone_iters: int | None = 300   # iteration limit of the friction-cone solver (None: its default); a search
     #                                can drop the rare hard problem, the final check gives it more
+    cone_polish: bool = False      # Newton polishing inside the friction-cone solver: the search needs verdicts
+    #                                at cone_tol, which plain ADMM gives at 2/3 of the cost; the final check
+    #                                of the pipeline polishes
     cone_tol: float | None = 1e-4  # its relative tolerance (None: its per-dtype default); the search needs the
     #                                verdict, not six digits; the final check of the pipeline uses the default
 
@@ -480,7 +483,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         run = torch.zeros_like(run)
     res = solve_friction_cone(pts, nrm, mu, problem.wrench[t].to(f64), mask=mask & run[:, None], weights=w,
                               sliding_dir=torch.cat([hand_slide, env_slide], 1), max_iters=s.cone_iters,
-                              tol=s.cone_tol)
+                              tol=s.cone_tol, polish=s.cone_polish)
     dyn_ok = (res.status == int(SolverStatus.CONVERGED)) | (
         (res.status == int(SolverStatus.MAX_ITERATIONS)) & (res.residual <= s.balance_tol * problem.weight))
     forces = res.forces.to(dtype) * (run & dyn_ok)[:, None, None].to(dtype)

@@ -113,6 +113,8 @@ def stats_dict(result: SynthesisResult, scene: Scene, *, strategy: str, seed: in
         "reconstructed": [bool(s.reconstructed) for s in result.solutions],
         "restarts": st.restarts, "deepest_frame": st.deepest_frame, "strategy": strategy, "seed": seed,
         "timings_s": result.timings, "trees": result.settings.trees, "candidates": result.settings.candidates,
+        "slide_speed": result.node_settings.slide_speed,
+        "rejections_by_frame": [list(r) for r in st.rejections_by_frame],
     }
 
 

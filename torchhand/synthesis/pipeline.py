@@ -70,6 +70,7 @@ class SynthesisResult:
     settings: SearchSettings
     excluded: int = 0
     timings: dict = field(default_factory=dict)
+    node_settings: NodeTestSettings = NodeTestSettings()
 
 
 def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
@@ -88,7 +89,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
-    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None)   # the solver's full accuracy for what is written
+    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True)   # full accuracy for what is written
     first = evaluate_poses(problem, t, q, settings=ns)
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
@@ -200,7 +201,8 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     t_total = time.perf_counter() - t_start
     return SynthesisResult(problem=problem, solutions=finals, stats=stats, settings=settings, excluded=excluded,
                            timings={"prepare_s": t_prep, "search_s": t_search,
-                                    "reconstruct_s": t_total - t_prep - t_search, "total_s": t_total})
+                                    "reconstruct_s": t_total - t_prep - t_search, "total_s": t_total},
+                           node_settings=node_settings)
 
 
 def diversity(solutions: list) -> float:
