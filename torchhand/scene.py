@@ -42,6 +42,7 @@ __all__ = [
     "environment_contacts",
     "load_scene",
     "interpolate_poses",
+    "smooth_poses",
 ]
 
 SIDES = ("right", "left")

@@ -223,3 +223,99 @@ def test_infeasible_motion_ends_with_a_report(tmp_path, capsys):
     assert rc == 1
     err = capsys.readouterr().err
     assert "no feasible motion" in err
+
+
+# --- the IK separates by finger; free fingers get out of the object ------------------------------------------------
+
+def test_ik_of_one_finger_ignores_the_other_fingers_targets(box_turn_problem):
+    """Every joint moves one finger, so a finger's IK result must not depend on what the other fingers are asked:
+    the index finger alone, and the index finger with an unreachable target for the middle finger, give the same
+    index-finger joints (per-finger damping and step acceptance)."""
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    N = 2
+    active = torch.zeros(N, 1, 5, dtype=torch.bool)
+    active[:, 0, 1] = True
+    active[1, 0, 2] = True
+    obj = torch.zeros(N, 1, 5, 3)
+    obj[:, 0, 1] = torch.tensor([0.02, 0.0, 0.03])
+    obj[1, 0, 2] = torch.tensor([0.3, 0.0, 0.03])            # 30 cm away: the middle finger cannot get there
+    guides = Guides(active, hand.distal_link.expand(N, 1, 5).clone(), pad_points(hand).expand(N, 1, 5, 3).clone(),
+                    obj, torch.zeros(N, 1, 5, 3))
+    res = run_node_test(p, torch.tensor([20, 20]), hand.q_rest.expand(N, 1, -1).clone(),
+                        torch.ones(N, dtype=torch.bool), guides, dynamics=False)
+    assert bool(res.kin_fail[1, 0, 2]) and not bool(res.kin_fail[0, 0, 2])
+    index_joints = [i for i, n in enumerate(hand.joint_names) if n.startswith("index_")]
+    torch.testing.assert_close(res.q[0, 0, index_joints], res.q[1, 0, index_joints], atol=1e-5, rtol=0)
+    assert float(res.guide_err[0, 0, 1]) == pytest.approx(float(res.guide_err[1, 0, 1]), abs=1e-5)
+
+
+def test_free_fingers_started_inside_the_object_are_brought_out(box_turn_problem):
+    """A first frame whose starting pose has the fingers flexed deep into the box (the palm is above it) still
+    passes the kinematic test: free fingers that stay inside are solved again from the open hand."""
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    from torchhand.collision import hand_object_penetration
+
+    N, t = 1, 30
+    flexed = hand.q_rest.clone()
+    for i, name in enumerate(hand.joint_names):
+        if name.endswith(("mcp_flex", "pip", "dip")) and not name.startswith("thumb"):
+            flexed[i] = hand.joint_limits[i, 1]
+    pen = hand_object_penetration(hand, hand.forward_kinematics(flexed[None], p.root[0, t:t + 1]), p.sdf,
+                                  p.object_pose[t:t + 1])
+    depth = -pen.deepest_value[0]
+    assert float(depth.max()) > 0.005, "the test needs fingers deep inside the box"
+    assert float(depth[0]) <= NodeTestSettings().pen_tol, "... and the palm outside it"
+    guides = Guides(torch.zeros(N, 1, 5, dtype=torch.bool), hand.distal_link.expand(N, 1, 5).clone(),
+                    pad_points(hand).expand(N, 1, 5, 3).clone(), torch.zeros(N, 1, 5, 3), torch.zeros(N, 1, 5, 3))
+    res = run_node_test(p, torch.tensor([t]), flexed.expand(N, 1, -1).clone(), torch.ones(N, dtype=torch.bool),
+                        guides, dynamics=False)
+    assert int(res.cause[0]) == 0, f"free fingers stayed inside: kin_fail {res.kin_fail.tolist()}"
+    assert float(res.penetration[0]) <= NodeTestSettings().pen_tol
+
+
+def test_release_plan_lets_idle_and_failed_fingers_go(box_turn_problem):
+    """After a kinematic failure one candidate releases every finger that failed or carried no force and keeps
+    the loaded ones static."""
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.node_test import FORCE_INSIDE, FORCE_ZERO
+    from torchhand.synthesis.search import SearchSettings, _Node, _Search
+
+    _, p = box_turn_problem
+    init = prune_patches(p, torch.Generator().manual_seed(0), per_finger=8)
+    s = _Search(p, init, SearchSettings(), NodeTestSettings(), seed=0)
+    w = 3
+    frames = {"seed_on": torch.ones(w, 1, 5, dtype=torch.bool),
+              "seed_class": torch.full((w, 1, 5), FORCE_INSIDE, dtype=torch.long)}
+    frames["seed_class"][-1, 0, 3] = FORCE_ZERO                # ring finger: no force
+    frames["seed_on"][-1, 0, 4] = False                        # little finger: not touching
+    node = _Node(0, w, frames, None, 1, 1)
+    plan = s._release(node, failed={1})                        # the index finger failed
+    kinds = [k for k, _, _ in plan]
+    FREE, STATIC = 3, 0
+    assert kinds == [STATIC, FREE, STATIC, FREE, FREE]
+
+
+# --- real motion capture ---------------------------------------------------------------------------------------
+
+def test_manipnet_mug_segment_yields_checked_solutions(tmp_path):
+    """Two seconds of ManipNet's mug1 (scene frames 614-674 at 30 fps: the right hand lifts the mug off the table
+    and holds it): the search finds motions and every frame passes the exact checks."""
+    from tests.conftest import shared_path
+    from torchhand.mocap import manipnet_scene
+    from torchhand.synthesis.output import write_result
+    from torchhand.synthesis.pipeline import synthesize
+
+    root = shared_path("mocap", "manipnet", "mug1")
+    scene = manipnet_scene(root, fps=30.0, hands=("right",)).with_frames(614, 674)
+    result = synthesize(scene, solutions=2, time_budget=100.0, seed=0,
+                        node_settings=NodeTestSettings(slide_speed=0.05))
+    assert len(result.solutions) >= 1, f"no solution; furthest frame {result.stats.deepest_frame}"
+    out = tmp_path / "mug"
+    write_result(result, scene, out, strategy="mixed", seed=0)
+    reports = check_result(out)
+    assert len(reports) == len(result.solutions)
+    for r in reports:
+        for key, limit in LIMITS.items():
+            assert r[key] <= limit, f"{r['file']}: {key} = {r[key]:.3g} > {limit}"
