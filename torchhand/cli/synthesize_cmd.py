@@ -108,8 +108,9 @@ def run(args) -> int:
           f"dynamic {st.rejections['dynamic']}); {result.excluded} path(s) excluded by the final check")
     if n == 0:
         print(f"no feasible motion found within {args.time_budget:g} s: the furthest any path got was frame "
-              f"{st.deepest_frame} of {scene.T}. Try a longer --time-budget, another --seed, or check that the "
-              f"wrists can reach the object (torchhand inspect {args.scene}).", file=sys.stderr)
+              f"{st.deepest_frame} of {scene.T}. Try a longer --time-budget, another --seed, --slide-speed 0.05 "
+              f"for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
+              f"(torchhand inspect {args.scene}).", file=sys.stderr)
         worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
         causes = ("kinematic", "finger-finger", "dynamic")
         where = ", ".join(f"frame {t}: {sum(st.rejections_by_frame[t])} ("

@@ -9,7 +9,10 @@ candidates, H hands, F fingers per hand, L links per hand, D finger joints per h
 IK (Eqs. 1–3) is a projected Levenberg–Marquardt on the guiding points, the nail-normal condition (Eq. 2, as a
 one-sided penalty: nail · outward surface normal >= ``nail_cos``) and a weak pull toward q_prev, with the box
 ``max(limit_lo, q_prev - dq) <= q <= min(limit_hi, q_prev + dq)`` (Eq. 3 and the joint limits) enforced by
-projection. Penetration resolution (§4.3): deviation from the paper, which re-solves the IK a few times with the
+projection; damping and step acceptance are per finger (the problem separates by finger, so one finger's hard
+target does not hold back the others). Free fingers that end inside the object are solved once more from the
+previous pose (or, on a first frame, the open hand): from inside a thin part Levenberg–Marquardt finds no way out.
+Penetration resolution (§4.3): deviation from the paper, which re-solves the IK a few times with the
 deepest (hand point, surface point) pair of each colliding phalanx substituted in. Here every finger link's
 collision capsule contributes one-sided residuals max(0, r + margin - sd) at points along its axis to the same
 Levenberg–Marquardt problem, so penetration is resolved in one solve, for every finger link (the thumb's
@@ -361,11 +364,12 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
 
 def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, q_prev: torch.Tensor | None = None,
                    prev_mask: torch.Tensor | None = None,
-                   settings: NodeTestSettings = NodeTestSettings()) -> FrameResult:
+                   settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True) -> FrameResult:
     """The contact and dynamic test of given poses, without IK (for reconstructed motion).
 
     t: (N,) frames; q: (N, H, D) radians; q_prev, prev_mask: the pose at ``t - 1`` (N, H, D) and its hand contacts
-    (N, K) bool, for the sliding rule of :func:`run_node_test` (None: every contact static).
+    (N, K) bool, for the sliding rule of :func:`run_node_test` (None: every contact static); dynamics: False
+    collects the contacts only (forces zero, feasibility from the kinematic verdicts).
     """
     kin = []
     for h in range(problem.H):
@@ -376,7 +380,7 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
     K = sum(hd.num_links for hd in problem.hands)
     hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
     prev = None if prev_mask is None else (q_prev, prev_mask)
-    return _finish(problem, t, kin, hand_slide, None, settings, True, prev)
+    return _finish(problem, t, kin, hand_slide, None, settings, dynamics, prev)
 
 
 def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, q: torch.Tensor,
@@ -481,12 +485,20 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     run = ~kin_bad & ~fingers_bad
     if not dynamics:
         run = torch.zeros_like(run)
-    res = solve_friction_cone(pts, nrm, mu, problem.wrench[t].to(f64), mask=mask & run[:, None], weights=w,
-                              sliding_dir=torch.cat([hand_slide, env_slide], 1), max_iters=s.cone_iters,
-                              tol=s.cone_tol, polish=s.cone_polish)
-    dyn_ok = (res.status == int(SolverStatus.CONVERGED)) | (
-        (res.status == int(SolverStatus.MAX_ITERATIONS)) & (res.residual <= s.balance_tol * problem.weight))
-    forces = res.forces.to(dtype) * (run & dyn_ok)[:, None, None].to(dtype)
+    # only the candidates that passed the kinematic test are solved (a host sync; rows are gathered)
+    rows = run.nonzero().squeeze(-1)
+    forces = torch.zeros(N, K + E, 3, dtype=f64, device=device)
+    dyn_ok = torch.zeros(N, dtype=torch.bool, device=device)
+    if rows.numel():
+        slide_all = torch.cat([hand_slide, env_slide], 1)
+        res = solve_friction_cone(pts[rows], nrm[rows], mu[rows], problem.wrench[t[rows]].to(f64), mask=mask[rows],
+                                  weights=w[rows], sliding_dir=slide_all[rows], max_iters=s.cone_iters,
+                                  tol=s.cone_tol, polish=s.cone_polish)
+        ok = (res.status == int(SolverStatus.CONVERGED)) | (
+            (res.status == int(SolverStatus.MAX_ITERATIONS)) & (res.residual <= s.balance_tol * problem.weight))
+        dyn_ok[rows] = ok
+        forces[rows] = res.forces
+    forces = forces.to(dtype) * (run & dyn_ok)[:, None, None].to(dtype)
     c_force, env_force = forces[:, :K], forces[:, K:]
     cause = torch.where(kin_bad, CAUSE_KINEMATIC, torch.where(fingers_bad, CAUSE_FINGERS,
                         torch.where(dyn_ok | (not dynamics), CAUSE_NONE, CAUSE_DYNAMIC)))

@@ -90,7 +90,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
     ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True)   # full accuracy for what is written
-    first = evaluate_poses(problem, t, q, settings=ns)
+    first = evaluate_poses(problem, t, q, settings=ns, dynamics=False)     # contacts only
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
     res = evaluate_poses(problem, t, q, q_prev, prev_mask, settings=ns)
@@ -135,7 +135,8 @@ def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, n
             mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
             contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
             rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
-                                     object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol)
+                                     object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
+                                     max_inner=8, step_tol=1e-3)
             qs.append(rec.q.to(sol.q.dtype))
         q_rec = torch.stack(qs, 1)
         res, sliding = attempt(q_rec)
@@ -183,9 +184,9 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
         report("search", nodes_tested=s.stats.nodes_tested, solutions=len(s.solutions),
                dead_ends=s.stats.dead_ends)
 
-    # every path found takes about 4 s of reconstruction (T ~ 70 frames, one hand) off the search's budget
+    # every path found takes about 2 s of reconstruction and checking (T ~ 70 frames, one hand) off the budget
     paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
-                          reserve_per_solution=0.06 * problem.T * problem.H if reconstruct else 0.0)
+                          reserve_per_solution=0.03 * problem.T * problem.H if reconstruct else 0.0)
     t_search = time.perf_counter() - t_start - t_prep
     paths = paths[:solutions]                 # the last round may have found more than were asked for
     finals, excluded = [], 0

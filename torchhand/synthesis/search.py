@@ -15,7 +15,10 @@ diversity). A node gets 1 or 2 children (probability 1/2 each: "branch once in e
 ``max_expansions`` expansions (maxBranchFactor); after a tree has produced 2 or 3 solutions from one initial sample
 (mean 2.5, §5) it restarts from a new one. Informed backtracking (§5): after a failed expansion the next one
 resamples only the finger that failed the kinematic test, one finger of an interpenetrating pair (the sample
-farthest from the other finger), or every finger after a dynamic failure. Each tree draws from its own
+farthest from the other finger), or every finger after a dynamic failure. One candidate after a kinematic
+failure is a release plan: every finger that failed or carried no force lets go and the loaded ones stay static
+(a deviation that the paper's rules imply but rarely draw: a hand leaving the object must release all its idle
+fingers in one window, and independent per-finger draws give that with probability about 2^-5 per hand). Each tree draws from its own
 ``torch.Generator`` (seeded ``seed + tree``), so a seed reproduces the run.
 """
 
