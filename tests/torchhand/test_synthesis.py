@@ -319,3 +319,49 @@ def test_manipnet_mug_segment_yields_checked_solutions(tmp_path):
     for r in reports:
         for key, limit in LIMITS.items():
             assert r[key] <= limit, f"{r['file']}: {key} = {r[key]:.3g} > {limit}"
+
+
+def test_edge_proxies_appear_at_an_edge_and_not_on_a_face(box_turn_problem):
+    """Area-contact proxies (§7): a fingertip pad lying along the box's top edge gets a proxy on the side face
+    (normal turned by ~90 degrees, within reach of the pad); the same pad in the middle of the top face gets
+    none. The pad is placed with its distal link's capsule touching the surface at the contact point."""
+    import dataclasses
+
+    from torchhand.synthesis.node_test import _edge_proxies
+
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    t = torch.tensor([0, 0])
+    lo, hi = p.surface.amin(0), p.surface.amax(0)                       # the box, object frame
+    centre = 0.5 * (lo + hi)
+    contact = torch.stack([torch.stack([hi[0] - 0.001, centre[1], hi[2]]),   # 1 mm from the +x top edge
+                           torch.stack([centre[0], centre[1], hi[2]])])      # middle of the top face
+    T_obj = p.object_pose[0]
+    world = (T_obj[:3, :3] @ contact.T).T + T_obj[:3, 3]
+    down = -T_obj[:3, 2]                                                  # into the object through the top face
+    F, dl = hand.num_fingers, hand.distal_link
+    poses = torch.eye(4).repeat(2, hand.num_links, 1, 1)
+    a, b, r = hand.capsule_a[dl[1]], hand.capsule_b[dl[1]], hand.capsule_radius[dl[1]]
+    # the index distal link's x axis along the edge (object y), its capsule resting on the top face at the contact
+    R = torch.stack([T_obj[:3, 1], -T_obj[:3, 0], T_obj[:3, 2]], 1)
+    mid = 0.5 * (a + b)
+    for n in range(2):
+        poses[n, dl[1], :3, :3] = R
+        poses[n, dl[1], :3, 3] = world[n] - down * r - R @ mid
+    on = torch.zeros(2, F, dtype=torch.bool)
+    on[:, 1] = True
+    point = torch.zeros(2, F, 3)
+    point[:, 1] = world
+    normal = torch.zeros(2, F, 3)
+    normal[:, 1] = down
+    mask, pp, pn, pl = _edge_proxies(p, t, hand, poses, on, point, normal, NodeTestSettings())
+    assert bool(mask[0, 1]) and not bool(mask[1, 1])
+    assert not bool(mask[:, [0, 2, 3, 4]].any())
+    assert float((pn[0, 1] * down).sum()) < 0.5                          # the side face's normal
+    side = (T_obj[:3, :3].T @ (pp[0, 1] - T_obj[:3, 3]))
+    assert abs(float(side[0] - hi[0])) < 1e-3                             # on the +x face
+    # the proxy is a point of the distal link: its local coordinates map back onto it
+    back = poses[0, dl[1], :3, :3] @ pl[0, 1] + poses[0, dl[1], :3, 3]
+    torch.testing.assert_close(back, pp[0, 1], atol=1e-5, rtol=0)
+    off = _edge_proxies(p, t, hand, poses, on, point, normal, dataclasses.replace(NodeTestSettings(), proxy_cos=-2.0))
+    assert not bool(off[0].any())

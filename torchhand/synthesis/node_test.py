@@ -3,8 +3,9 @@ contact collection) then dynamic test (friction-cone forces), for N candidate gu
 
 Each candidate n sits at its own frame ``t[n]`` with its own previous pose ``q_prev[n]``; all H hands of the scene
 are solved together (their fingers are independent in the IK, their forces are solved jointly). Shapes: N
-candidates, H hands, F fingers per hand, L links per hand, D finger joints per hand, K = H L hand-contact slots
-(one per link: the link's closest surface sample), E environment-contact slots.
+candidates, H hands, F fingers per hand, L links per hand, D finger joints per hand, K = H L + H F hand-contact
+slots (one per link: the link's closest surface sample; then one area-contact proxy per fingertip, see
+:func:`contact_slots`), E environment-contact slots.
 
 IK (Eqs. 1–3) is a projected Levenberg–Marquardt on the guiding points, the nail-normal condition (Eq. 2, as a
 one-sided penalty: nail · outward surface normal >= ``nail_cos``) and a weak pull toward q_prev, with the box
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 
 import torch
 
+from torchhand.kernels.frames import tangent_frame
 from torchhand.kernels.friction_cone import solve_friction_cone
 from torchhand.kernels.penetration import capsule_interpenetration
 from torchhand.kernels.status import SolverStatus
@@ -38,8 +40,8 @@ from torchhand.kernels.status import SolverStatus
 from ..collision import hand_object_penetration
 from .problem import SynthesisProblem
 
-__all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points", "CAUSE_NONE", "CAUSE_KINEMATIC",
-           "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
+__all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points",
+           "contact_slots", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
 
 CAUSE_NONE, CAUSE_KINEMATIC, CAUSE_FINGERS, CAUSE_DYNAMIC = 0, 1, 2, 3
 FORCE_ZERO, FORCE_INSIDE, FORCE_BOUNDARY = 0, 1, 2
@@ -83,6 +85,10 @@ class NodeTestSettings:
     env_weight: float = 0.5        # objective weight of table contacts (Eq. 4); 0 makes the optimum degenerate
     balance_tol: float = 1e-3      # an unfinished force solve still counts when its wrench residual is below this
     #                                times the object's weight (forces are cone-feasible by construction)
+    edge_proxies: bool = True      # area-contact proxies near sharp edges (Ye & Liu §7)
+    proxy_radius: float = 0.003    # proxies are tried this far from a fingertip contact on the surface, metres
+    proxy_cos: float = 0.9         # a proxy counts where its normal turns more than acos(proxy_cos) (~26 deg)
+    proxy_dist: float = 0.0015     # ... and the fingertip's capsule is within this distance of it, metres
     boundary: float = 0.97         # |f_t| >= boundary mu f_n: the force is on the cone's boundary
     zero_force: float = 1e-3       # f_n below zero_force * weight: no force
     slide_speed: float = 0.02      # a held contact moving on the object faster than this slides, m/s
@@ -103,7 +109,7 @@ class FrameResult:
     feasible:    (N,) bool; cause: (N,) int, CAUSE_* of the first failure (kinematic > fingers > dynamic)
     kin_fail:    fingers that failed the kinematic test, (N, H, F) bool
     pair:        global finger indices (h F + f) of the deepest finger-finger overlap, (N, 2) long, -1 if none
-    c_mask:      hand contacts, (N, K) bool, K = H L (slot h L + l is link l of hand h)
+    c_mask:      hand contacts, (N, K) bool, K = H L + H F (:func:`contact_slots`)
     c_local:     hand point of each contact in its link's frame, (N, K, 3); c_point: contact point on the object
                  surface, (N, K, 3) world; c_normal: into the object, (N, K, 3); c_force: force of the hand on the
                  object, (N, K, 3) world, newtons (zero unless the dynamic test ran and converged); c_sliding:
@@ -158,6 +164,63 @@ def pad_points(hand) -> torch.Tensor:
     axis = a + u[:, None] * (b - a)
     d = tip - axis
     return axis + r[:, None] * d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def contact_slots(problem: SynthesisProblem) -> tuple[torch.Tensor, torch.Tensor]:
+    """The hand-contact slots of a node test's outputs: K = H L + H F. Slot ``h L + l`` is link l of hand h (its
+    closest surface sample); slot ``H L + h F + f`` is the area-contact proxy of finger f's fingertip on hand h.
+    Returns (hand (K,) long, link (K,) long: the link within its hand)."""
+    H, F = problem.H, problem.F
+    hands, links = [], []
+    for h, hand in enumerate(problem.hands):
+        L = hand.num_links
+        hands.append(torch.full((L,), h, dtype=torch.long))
+        links.append(torch.arange(L))
+    for h, hand in enumerate(problem.hands):
+        hands.append(torch.full((F,), h, dtype=torch.long))
+        links.append(hand.distal_link.cpu())
+    return torch.cat(hands).to(problem.device), torch.cat(links).to(problem.device)
+
+
+def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch.Tensor, on: torch.Tensor,
+                  point: torch.Tensor, normal: torch.Tensor, s: NodeTestSettings):
+    """Area-contact proxies near sharp edges (Ye & Liu §7): "forces on a few proxy points in the neighborhood of
+    an actual contact point, capturing the local features of geometry".
+
+    For each fingertip contact (on (N, F), point and normal (N, F, 3) world, normal into the object), four points
+    ``proxy_radius`` away along the surface's tangent directions are projected onto the surface with the SDF; one
+    counts where its normal turns by more than acos(``proxy_cos``) from the contact's (an edge or a corner is
+    under the pad: on a flat face a proxy would add nothing) and the fingertip's capsule is within ``proxy_dist``
+    of it (the pad covers it). The one whose normal turns most is kept. Returns mask (N, F), point (N, F, 3)
+    world, normal (N, F, 3) into the object, local (N, F, 3) in the distal link's frame."""
+    N, F = on.shape
+    dl = hand.distal_link
+    T_inv, T_obj = problem.object_inv[t], problem.object_pose[t]
+    p0 = _transform(T_inv[:, None], point)                                  # object frame
+    n0 = _rotate(T_inv[:, None], normal)
+    t1, t2 = tangent_frame(n0 / n0.norm(dim=-1, keepdim=True).clamp_min(1e-9))
+    x = p0[:, :, None] + s.proxy_radius * torch.stack([t1, -t1, t2, -t2], 2)    # (N, F, 4, 3)
+    for _ in range(2):                                                      # onto the surface
+        sd, g = problem.sdf.query_with_grad(x.reshape(N, -1, 3))
+        g = g.reshape(x.shape)
+        x = x - sd.reshape(x.shape[:-1])[..., None] * g / g.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    sd, g = problem.sdf.query_with_grad(x.reshape(N, -1, 3))
+    n_in = -(g / g.norm(dim=-1, keepdim=True).clamp_min(1e-9)).reshape(x.shape)
+    cos = (n_in * n0[:, :, None]).sum(-1)                                  # (N, F, 4)
+    xw = _transform(T_obj[:, None, None], x)
+    T_d = poses[:, dl]                                                      # (N, F, 4, 4)
+    R_d, o_d = T_d[..., :3, :3], T_d[..., :3, 3]
+    local = (R_d.transpose(-1, -2)[:, :, None] @ (xw - o_d[:, :, None]).unsqueeze(-1)).squeeze(-1)   # (N, F, 4, 3)
+    a, b = hand.capsule_a[dl][:, None], hand.capsule_b[dl][:, None]         # (F, 1, 3)
+    u = (((local - a) * (b - a)).sum(-1) / ((b - a) * (b - a)).sum(-1).clamp_min(1e-12)).clamp(0, 1)
+    gap = (local - (a + u[..., None] * (b - a))).norm(dim=-1) - hand.capsule_radius[dl][:, None]
+    ok = on[..., None] & (cos < s.proxy_cos) & (gap <= s.proxy_dist) & (gap >= -s.pen_tol) \
+        & (sd.reshape(cos.shape).abs() <= 1e-4)
+    pick = torch.where(ok, cos, torch.full_like(cos, 2.0)).argmin(-1, keepdim=True)   # (N, F, 1)
+    mask = ok.any(-1)
+    take = lambda v: v.gather(2, pick[..., None].expand(N, F, 1, 3)).squeeze(2)
+    m3 = mask[..., None].to(point.dtype)
+    return mask, take(xw) * m3, _rotate(T_obj[:, None], take(n_in)) * m3, take(local) * m3
 
 
 def _axis_points(hand, per_link: int = 4):
@@ -377,7 +440,7 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
         poses = hand.forward_kinematics(q[:, h], problem.root[h, t])
         pen = hand_object_penetration(hand, poses, problem.sdf, problem.object_pose[t])
         kin.append((q[:, h], poses, q.new_zeros(t.shape[0], hand.num_fingers), pen))
-    K = sum(hd.num_links for hd in problem.hands)
+    K = sum(hd.num_links for hd in problem.hands)                       # per-link slots (proxies: _finish)
     hand_slide = torch.zeros(t.shape[0], K, 3, dtype=torch.float64, device=q.device)
     prev = None if prev_mask is None else (q_prev, prev_mask)
     return _finish(problem, t, kin, hand_slide, None, settings, dynamics, prev)
@@ -385,19 +448,20 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
 
 def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, q: torch.Tensor,
                   c_local: torch.Tensor, held: torch.Tensor, speed_tol: float):
-    """Sliding of the contacts held since the previous frame: the hand point (``c_local``, fixed on its link) in
-    the object frame at t - 1 (pose q_prev) and at t (pose q). Returns the unit direction of the object's
-    material point relative to the hand point, (N, K, 3) world float64 (zero where not sliding), and the sliding
-    flags (N, K)."""
+    """Sliding of the contacts held since the previous frame: the hand point (``c_local``, fixed on its slot's link,
+    :func:`contact_slots`) in the object frame at t - 1 (pose q_prev) and at t (pose q). Returns the unit direction
+    of the object's material point relative to the hand point, (N, K, 3) world float64 (zero where not sliding),
+    and the sliding flags (N, K)."""
+    slot_hand, slot_link = contact_slots(problem)
     tp = (t - 1).clamp_min(0)
     pos = []
     for when, qq in ((tp, q_prev), (t, q)):
-        out = []
+        world = torch.zeros_like(c_local)
         for h, hand in enumerate(problem.hands):
-            L = hand.num_links
             poses = hand.forward_kinematics(qq[:, h], problem.root[h, when])
-            out.append(_transform(poses, c_local[:, h * L:(h + 1) * L]))
-        pos.append(_transform(problem.object_inv[when][:, None], torch.cat(out, 1)))
+            sel = (slot_hand == h).nonzero().squeeze(-1)
+            world[:, sel] = _transform(poses[:, slot_link[sel]], c_local[:, sel])
+        pos.append(_transform(problem.object_inv[when][:, None], world))
     v_obj = (pos[1] - pos[0]) * problem.fps
     v_world = _rotate(problem.object_pose[t][:, None], v_obj).to(torch.float64)
     speed = v_world.norm(dim=-1)
@@ -447,6 +511,26 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         w = torch.ones(N, L, dtype=dtype, device=device) if weights is None else \
             torch.where(lf >= 0, weights[:, h].gather(1, lf.clamp_min(0).expand(N, L)), torch.ones_like(deep))
         link_weight.append(w)
+    # area-contact proxies of the fingertips (slots H L + h F + f), with their finger's weight and the sliding
+    # direction of the fingertip's own slot
+    proxy_slide = []
+    for h in range(H):
+        hand = problem.hands[h]
+        L = hand.num_links
+        dl = hand.distal_link
+        if s.edge_proxies:
+            pm, pp, pn, pl = _edge_proxies(problem, t, hand, kin[h][1], c_mask[h][:, dl], c_point[h][:, dl],
+                                           c_normal[h][:, dl], s)
+        else:
+            pm = torch.zeros_like(c_mask[h][:, dl])
+            pp = pn = pl = torch.zeros_like(c_point[h][:, dl])
+        c_mask.append(pm)
+        c_point.append(pp)
+        c_normal.append(pn)
+        c_local.append(pl)
+        link_weight.append(link_weight[h][:, dl])
+        proxy_slide.append(hand_slide[:, h * L + dl])
+    hand_slide = torch.cat([hand_slide] + proxy_slide, 1)
     q = torch.stack(qs, 1)
     kin_fail = torch.stack(kin_fail, 1)
     guide_err = torch.stack(errs, 1)

@@ -31,6 +31,7 @@ import torch
 from ..errors import InputValueError
 from ..hand.mjcf import hand_to_mjcf
 from ..scene import Scene
+from .node_test import contact_slots
 from .pipeline import SynthesisResult, diversity
 
 __all__ = ["MAX_CONTACTS", "write_result", "solution_arrays", "stats_dict"]
@@ -70,7 +71,10 @@ def solution_arrays(result: SynthesisResult, index: int, strategy: str) -> dict:
     order = torch.sort((~mask).to(torch.int8), dim=-1, stable=True).indices[:, :K]      # contacts first
     take = lambda x: torch.gather(x.cpu(), 1, order[..., None].expand(-1, -1, x.shape[-1]) if x.dim() == 3 else order)
     c_mask = torch.gather(mask, 1, order)
-    link = torch.where(c_mask, order, torch.full_like(order, -1))
+    slot_hand, slot_link = contact_slots(p)
+    offsets = torch.tensor([0] + [hd.num_links for hd in hands[:-1]]).cumsum(0)
+    slot_name = (offsets[slot_hand.cpu()] + slot_link.cpu())                              # index into the names
+    link = torch.where(c_mask, slot_name[order], torch.full_like(order, -1))
     f = lambda x: x.detach().double().cpu().numpy()
     m3 = c_mask[..., None].double()
     out = {

@@ -32,7 +32,7 @@ import torch
 
 from .initial import InitialSamples
 from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
-                        Guides, NodeTestSettings, pad_points, run_node_test)
+                        Guides, NodeTestSettings, contact_slots, pad_points, run_node_test)
 from .problem import SynthesisProblem
 
 __all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
@@ -324,7 +324,7 @@ class _Search:
         q_prev = self.q_rest.expand(N, H, -1).clone()
         first = torch.zeros(N, dtype=torch.bool, device=device)
         weights = torch.ones(N, H, F, dtype=dtype, device=device)
-        K = sum(hd.num_links for hd in p.hands)
+        K = contact_slots(p)[0].numel()
         prev_mask = torch.zeros(N, K, dtype=torch.bool, device=device)   # hand contacts of the previous frame
         for i, (j, node, plan, wi) in enumerate(cand):
             if node.frames is None:
