@@ -114,7 +114,7 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
                         mask: torch.Tensor | None = None, weights: torch.Tensor | None = None,
                         sliding_dir: torch.Tensor | None = None, warm_start: torch.Tensor | None = None,
                         tol: float | None = None, max_iters: int | None = None,
-                        check_every: int = 10, polish: bool = True) -> ConeResult:
+                        check_every: int = 10, polish: bool = True, polish_from: int | None = None) -> ConeResult:
     """Minimum weighted normal force contact forces that produce a required wrench (Ye & Liu 2012, Eqs. 4-8).
 
     Args:
@@ -132,6 +132,8 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
         check_every: iterations between convergence checks (the only host syncs)
         polish: Newton-polish the ADMM fixed point (exact active sets, faster to tight tolerances); without it
             plain ADMM, cheaper per check and enough for a feasibility verdict at a loose ``tol``
+        polish_from: first iteration at which polishing is tried (default 20): later polishing leaves the easy
+            problems to plain ADMM and spends Newton steps on the slow ones only
 
     Returns:
         :class:`ConeResult`. Problems with NaN/inf in an active entry (or a zero normal, mu < 0, weight < 0) are
@@ -224,6 +226,8 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
     # --- warm start (world forces -> normalised local coordinates) --------------------------------------------
     settings = AdmmSettings(eps=eps, eps_cert=tab.eps_cert, max_iters=max_iters, check_every=check_every,
                             polish=bool(polish))
+    if polish_from is not None:
+        settings = settings._replace(polish_from=int(polish_from))
     if warm_start is not None:
         # Parent forces -> local, normalised, with a dual fitted to them; polished before the first iteration.
         z0 = (R.transpose(-1, -2) @ torch.where(act[..., None], warm_start, zero)[..., None]).squeeze(-1)

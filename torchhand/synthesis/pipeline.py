@@ -89,7 +89,7 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
-    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True)   # full accuracy for what is written
+    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None)  # full accuracy
     first = evaluate_poses(problem, t, q, settings=ns, dynamics=False)     # contacts only
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
