@@ -132,6 +132,19 @@ def dual_lower_bound(y: torch.Tensor, prob: NormalisedProblem) -> torch.Tensor:
     return theta_i.amin(-1).clamp(0, 1) * (prob.b * y).sum(-1)
 
 
+_EIGH_CHUNK = 16384
+
+
+def _batched_eigh(G: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """torch.linalg.eigh of (B, m, m) in chunks of at most ``_EIGH_CHUNK`` problems on CUDA: cuSOLVER's batched
+    eigensolver fails (an internal error at B = 65536, an out-of-memory workspace request beyond) on large batches
+    of small matrices."""
+    if G.device.type != "cuda" or G.shape[0] <= _EIGH_CHUNK:
+        return torch.linalg.eigh(G)
+    parts = [torch.linalg.eigh(g) for g in G.split(_EIGH_CHUNK)]
+    return torch.cat([e for e, _ in parts]), torch.cat([v for _, v in parts])
+
+
 def build_problem(A: torch.Tensor, b: torch.Tensor, c: torch.Tensor, mu: torch.Tensor, active: torch.Tensor,
                   rank_tol: float, eps_cert: float) -> tuple[NormalisedProblem, torch.Tensor]:
     """The :class:`NormalisedProblem` of (A (B, m, 3K), b (B, m), c (B, 3K), mu, active (B, K)), all already scaled
@@ -141,7 +154,7 @@ def build_problem(A: torch.Tensor, b: torch.Tensor, c: torch.Tensor, mu: torch.T
     # The small factorisation is done in float64 whatever the working dtype: a float32 eigh would blur the
     # rank decision of nearly degenerate grasps.
     A64, b64 = A.double(), b.double()
-    evals, evecs = torch.linalg.eigh(A64 @ A64.transpose(1, 2))
+    evals, evecs = _batched_eigh(A64 @ A64.transpose(1, 2))
     keep = evals > rank_tol * evals[:, -1:].clamp_min(torch.finfo(torch.float64).tiny)
     inv = torch.where(keep, 1.0 / torch.where(keep, evals, torch.ones_like(evals)), 0.0)
     Gp = (evecs * inv[:, None, :]) @ evecs.transpose(1, 2)
