@@ -129,7 +129,6 @@ def _sorted_link_penetration(link_poses, sample_points, sample_link, T_obj_world
     with the composed object-from-link pose, and reduced per slice; no (B, S, 3, 3) gather of rotations and no
     scatter over all samples. Same results (ties of the minimum resolve to the first sample, as there)."""
     b, n_links = link_poses.shape[:2]
-    s = sample_points.shape[0]
     M = T_obj_world[:, None] @ link_poses                          # (B, L, 4, 4) object <- link
     counts = torch.bincount(sample_link, minlength=n_links).tolist()
     chunks, start = [], 0

@@ -173,7 +173,7 @@ def contact_slots(problem: SynthesisProblem) -> tuple[torch.Tensor, torch.Tensor
     """The hand-contact slots of a node test's outputs: K = H L + H F. Slot ``h L + l`` is link l of hand h (its
     closest surface sample); slot ``H L + h F + f`` is the area-contact proxy of finger f's fingertip on hand h.
     Returns (hand (K,) long, link (K,) long: the link within its hand)."""
-    H, F = problem.H, problem.F
+    F = problem.F
     hands, links = [], []
     for h, hand in enumerate(problem.hands):
         L = hand.num_links
@@ -224,6 +224,16 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     take = lambda v: v.gather(2, pick[..., None].expand(N, F, 1, 3)).squeeze(2)
     m3 = mask[..., None].to(point.dtype)
     return mask, take(xw) * m3, _rotate(T_obj[:, None], take(n_in)) * m3, take(local) * m3
+
+
+def _finger_depth(hand, deepest_value: torch.Tensor) -> torch.Tensor:
+    """Deepest penetration of each finger's links, (N, F) metres (>= 0), from a link's smallest signed distance
+    ``deepest_value`` (N, L). A float scatter (CUDA has no scatter_reduce for bool)."""
+    lf = hand.link_finger
+    N = deepest_value.shape[0]
+    depth = (-deepest_value).clamp_min(0) * (lf >= 0).to(deepest_value.dtype)
+    return deepest_value.new_zeros(N, hand.num_fingers).scatter_reduce(1, lf.clamp_min(0).expand(N, -1), depth,
+                                                                       reduce="amax")
 
 
 def _axis_points(hand, per_link: int = 4):
@@ -367,8 +377,7 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
                          slot_link, g_local[rows], g_target[rows], g_weight[rows], n_out[rows], act[rows],
                          s.ik_iters, s)
 
-    every = torch.arange(N, device=device)
-    q = solve(every, q0)
+    q = solve(slice(None), q0)
     poses = hand.forward_kinematics(q, root)
     pen = hand_object_penetration(hand, poses, problem.sdf, T_obj)
     # A free finger that still penetrates started from a pose the object's motion brought into it (the rest pose
@@ -376,26 +385,23 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     # finds no way out. Those rows are solved once more with the free fingers starting where nothing pulls them
     # into the object: the previous pose, or on a first frame the open hand. Fingers are independent in the IK
     # (every joint belongs to one finger), so each finger keeps the attempt in which it penetrates least.
-    lf = hand.link_finger
-    finger_depth = torch.zeros(N, F, dtype=dtype, device=device).scatter_reduce(
-        1, lf.clamp_min(0).expand(N, L), (-pen.deepest_value).clamp_min(0) * (lf >= 0).to(dtype), reduce="amax")
+    finger_depth = _finger_depth(hand, pen.deepest_value)
     retry = ((finger_depth > s.pen_tol) & ~act).any(-1).nonzero().squeeze(-1)
     if retry.numel():
+        R = retry.numel()
         open_q = torch.zeros(D, dtype=dtype, device=device).clamp(lim[:, 0], lim[:, 1])
-        start_free = torch.where(lifted[retry], open_q.expand(retry.numel(), D), q_prev[retry])
+        start_free = torch.where(lifted[retry], open_q.expand(R, D), q_prev[retry])
         start = torch.where(guided_joint[retry], q0[retry], start_free.clamp(lo[retry], hi[retry]))
         q2 = solve(retry, start)
-        poses2 = hand.forward_kinematics(q2, root[retry])
-        pen2 = hand_object_penetration(hand, poses2, problem.sdf, T_obj[retry])
-        depth2 = torch.zeros(retry.numel(), F, dtype=dtype, device=device).scatter_reduce(
-            1, lf.clamp_min(0).expand(retry.numel(), L), (-pen2.deepest_value).clamp_min(0) * (lf >= 0).to(dtype),
-            reduce="amax")
-        better = (depth2 < finger_depth[retry]) & ~act[retry]                          # (R, F)
-        take = better.gather(1, joint_finger.clamp_min(0).expand(retry.numel(), D)) & (joint_finger >= 0)
-        q = q.clone()
-        q[retry] = torch.where(take, q2, q[retry])
-        poses = hand.forward_kinematics(q, root)
-        pen = hand_object_penetration(hand, poses, problem.sdf, T_obj)
+        pen2 = hand_object_penetration(hand, hand.forward_kinematics(q2, root[retry]), problem.sdf, T_obj[retry])
+        better = (_finger_depth(hand, pen2.deepest_value) < finger_depth[retry]) & ~act[retry]      # (R, F)
+        take = better.gather(1, joint_finger.clamp_min(0).expand(R, D)) & (joint_finger >= 0)
+        # only the retried rows change: their merged poses and penetration replace those rows
+        q_r = torch.where(take, q2, q[retry])
+        poses_r = hand.forward_kinematics(q_r, root[retry])
+        pen_r = hand_object_penetration(hand, poses_r, problem.sdf, T_obj[retry])
+        q, poses = q.index_copy(0, retry, q_r), poses.index_copy(0, retry, poses_r)
+        pen = type(pen)(*(a.index_copy(0, retry, b) for a, b in zip(pen, pen_r)))
     tip_link = guides.link[:, h]
     T_g = poses.gather(1, tip_link[..., None, None].expand(N, F, 4, 4))
     err = (_transform(T_g, guides.local[:, h]) - g_world).norm(dim=-1) * act.to(dtype)
@@ -451,19 +457,19 @@ def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, 
     return _finish(problem, t, kin, hand_slide, None, settings, dynamics, prev)
 
 
-def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, q: torch.Tensor,
+def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, poses_now: list,
                   c_local: torch.Tensor, held: torch.Tensor, speed_tol: float):
     """Sliding of the contacts held since the previous frame: the hand point (``c_local``, fixed on its slot's link,
-    :func:`contact_slots`) in the object frame at t - 1 (pose q_prev) and at t (pose q). Returns the unit direction
-    of the object's material point relative to the hand point, (N, K, 3) world float64 (zero where not sliding),
-    and the sliding flags (N, K)."""
+    :func:`contact_slots`) in the object frame at t - 1 (pose q_prev) and at t (link poses ``poses_now``, one
+    (N, L, 4, 4) per hand). Returns the unit direction of the object's material point relative to the hand point,
+    (N, K, 3) world float64 (zero where not sliding), and the sliding flags (N, K)."""
     slot_hand, slot_link = contact_slots(problem)
     tp = (t - 1).clamp_min(0)
+    poses_prev = [hand.forward_kinematics(q_prev[:, h], problem.root[h, tp]) for h, hand in enumerate(problem.hands)]
     pos = []
-    for when, qq in ((tp, q_prev), (t, q)):
+    for when, hand_poses in ((tp, poses_prev), (t, poses_now)):
         world = torch.zeros_like(c_local)
-        for h, hand in enumerate(problem.hands):
-            poses = hand.forward_kinematics(qq[:, h], problem.root[h, when])
+        for h, poses in enumerate(hand_poses):
             sel = (slot_hand == h).nonzero().squeeze(-1)
             world[:, sel] = _transform(poses[:, slot_link[sel]], c_local[:, sel])
         pos.append(_transform(problem.object_inv[when][:, None], world))
@@ -494,9 +500,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         deep = pen.deepest_value                                                     # (N, L)
         too_deep = deep < -s.pen_tol
         fail = err > s.ik_tol                                                        # (N, F)
-        # (a float reduction: CUDA has no scatter_reduce for bool)
-        fingers_deep = torch.zeros(N, F, dtype=dtype, device=device).scatter_reduce_(
-            1, lf.clamp_min(0).expand(N, L), (too_deep & (lf >= 0)).to(dtype), reduce="amax") > 0
+        fingers_deep = _finger_depth(hand, deep) > s.pen_tol
         palm_deep = (too_deep & (lf < 0)).any(-1, keepdim=True)
         fail = fail | fingers_deep | palm_deep
         kin_fail.append(fail)
@@ -555,7 +559,8 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     if prev is not None:
         q_prev, prev_mask = prev
         held = c_mask & prev_mask
-        direction, c_sliding = _motion_slide(problem, t, q_prev, q, c_local, held, s.slide_speed)
+        direction, c_sliding = _motion_slide(problem, t, q_prev, [k[1] for k in kin], c_local, held,
+                                             s.slide_speed)
         hand_slide = torch.where(held[..., None], direction, hand_slide)
 
     # --- dynamic test (Eqs. 4–8), float64, hand and table contacts together ----------------------------------

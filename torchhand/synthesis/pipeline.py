@@ -38,7 +38,8 @@ __all__ = ["FinalSolution", "SynthesisResult", "synthesize", "finalize_solution"
 
 @dataclass(frozen=True)
 class FinalSolution:
-    """A finished motion (T frames, H hands, K = H L contact slots, E table slots).
+    """A finished motion (T frames, H hands, K = H L + H F contact slots (``node_test.contact_slots``), E table
+    slots).
 
     q: (T, H, D) radians; c_mask (T, K) bool; c_local (T, K, 3) link frame; c_point (T, K, 3) world, on the
     object surface; c_normal (T, K, 3) into the object; c_force (T, K, 3) newtons, hand on object;

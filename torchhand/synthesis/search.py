@@ -18,8 +18,8 @@ resamples only the finger that failed the kinematic test, one finger of an inter
 farthest from the other finger), or every finger after a dynamic failure. One candidate after a kinematic
 failure is a release plan: every finger that failed or carried no force lets go and the loaded ones stay static
 (a deviation that the paper's rules imply but rarely draw: a hand leaving the object must release all its idle
-fingers in one window, and independent per-finger draws give that with probability about 2^-5 per hand). Each tree draws from its own
-``torch.Generator`` (seeded ``seed + tree``), so a seed reproduces the run.
+fingers in one window, and independent per-finger draws give that with probability about 2^-5 per hand). Each
+tree draws from its own ``torch.Generator`` (seeded ``seed + tree``), so a seed reproduces the run.
 """
 
 from __future__ import annotations
