@@ -2,7 +2,8 @@
 
 Drawing: :func:`render_frames` / :func:`write_video` turn :class:`Clip` s (built by :func:`clip_from_solution` from a
 result directory, or :func:`clip_from_hand` from joint angles and wrist poses) into frames and mp4 / GIF / PNG files;
-:func:`render_hand_motion` draws a hand alone. Result files: :func:`load_result_dir`, :func:`load_solution`.
+:func:`render_hand_motion` draws a hand alone. Result directories are read by :func:`torchhand.result.load_result`
+(the format is ``docs/result_format.md``).
 Plots: :mod:`torchhand.render.plots`. The ``torchhand render`` and ``torchhand plot`` commands call
 :mod:`torchhand.render.jobs`.
 
@@ -26,10 +27,6 @@ _LAZY = {
     "write_video": ".compose",
     "ClipRenderer": ".renderer",
     "Style": ".renderer",
-    "ResultDir": ".results",
-    "Solution": ".results",
-    "load_result_dir": ".results",
-    "load_solution": ".results",
     "render_result": ".jobs",
     "plot_result": ".jobs",
 }

@@ -114,8 +114,8 @@ def clip_from_hand(q: np.ndarray, root: np.ndarray, hand=None, *, fps: float = 3
 
 
 def clip_from_solution(result, solution, *, labels=()) -> Clip:
-    """The clip of ``solution`` (:class:`~torchhand.render.results.Solution`) in ``result``'s scene
-    (:class:`~torchhand.render.results.ResultDir`): hands, object, table, contacts and forces."""
+    """The clip of ``solution`` (:class:`~torchhand.result.Solution`) in ``result``'s scene
+    (:class:`~torchhand.result.Result`): hands, object, table, contacts and forces."""
     scene = result.scene
     hands = []
     for hs in solution.hands:
@@ -125,14 +125,8 @@ def clip_from_solution(result, solution, *, labels=()) -> Clip:
 
             model = default_hand(hs.side if hs.side in ("right", "left") else "right")
         hands.append(HandTrackLinks(model, hand_link_poses(model, hs.q, hs.root_pose, hs.joint_names)))
-    T = solution.T
-    obj_pose = solution.object_pose
-    if obj_pose is None:
-        obj_pose = scene.object_pose.detach().cpu().double().numpy()
-        if len(obj_pose) != T:
-            obj_pose = obj_pose[np.clip(np.arange(T), 0, len(obj_pose) - 1)]
     env = scene.environment
-    return Clip(hands=tuple(hands), fps=solution.fps, object_mesh=scene.object.mesh, object_pose=obj_pose,
+    return Clip(hands=tuple(hands), fps=solution.fps, object_mesh=scene.object.mesh, object_pose=solution.object_pose,
                 table_height=float(env.table_height) if env.table else None,
                 contact_mask=solution.contact_mask, contact_point=solution.contact_point,
                 contact_force=solution.contact_force, env_contact_mask=solution.env_contact_mask,

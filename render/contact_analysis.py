@@ -1,10 +1,10 @@
 """Per-finger contact states and forces of a solution, for plots and labels (NumPy).
 
-A finger is *free* in a frame when none of its links has a contact, *sliding* when its contact point (the mean of
-its contacts, in the object frame) moves over the object faster than ``slide_speed``, else *static*. Forces are the
-contact forces of the hand on the object, split along each contact's normal (pointing into the object): the normal
-magnitude sums ``f . n`` over the finger's contacts, the tangential magnitude is the norm of the summed tangential
-parts; the friction-cone limit is ``mu * f_n``. Units: metres, seconds, newtons.
+A finger is *free* in a frame when none of its links has a contact, *sliding* when one of its contacts is marked in
+the solution's stored ``contact_sliding`` (the synthesis' own rule; ``docs/result_format.md``), else *static*.
+Forces are the contact forces of the hand on the object, split along each contact's normal (pointing into the
+object): the normal magnitude sums ``f . n`` over the finger's contacts, the tangential magnitude is the norm of the
+summed tangential parts; the friction-cone limit is ``mu * f_n``. Units: metres, seconds, newtons.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class FingerContacts:
 
     labels: (N,) str, e.g. "thumb" or "right thumb"
     state: (T, N) int, FREE / STATIC / SLIDING
-    normal: (T, N) newtons; tangential: (T, N) newtons; speed: (T, N) contact-point speed on the object, m/s
+    normal: (T, N) newtons; tangential: (T, N) newtons
     friction: the hand-object friction coefficient
     fps: frames per second
     """
@@ -36,30 +36,21 @@ class FingerContacts:
     state: np.ndarray
     normal: np.ndarray
     tangential: np.ndarray
-    speed: np.ndarray
     friction: float
     fps: float
 
 
-def _object_frame(points: np.ndarray, object_pose: np.ndarray | None) -> np.ndarray:
-    if object_pose is None:
-        return points
-    inv = np.linalg.inv(object_pose)  # (T, 4, 4)
-    return np.einsum("tij,tkj->tki", inv[:, :3, :3], points) + inv[:, None, :3, 3]
-
-
-def finger_contacts(solution, hand_models: dict, *, slide_speed: float = 0.01,
-                    friction: float | None = None) -> FingerContacts:
+def finger_contacts(solution, hand_models: dict, *, friction: float | None = None) -> FingerContacts:
     """Contact state and force magnitudes per finger and frame.
 
-    solution: :class:`~torchhand.render.results.Solution` with contact arrays
+    solution: :class:`~torchhand.result.Solution`
     hand_models: side -> :class:`~torchhand.hand.HandModel` (for link -> finger)
-    slide_speed: contact-point speed on the object above which a finger slides, m/s
-    friction: friction coefficient for the cone limit (default: the solution's, else 0.5)
+    friction: friction coefficient for the cone limit (default: the solution's ``friction``)
     """
     s = solution
-    if s.contact_mask is None or s.contact_link is None or s.contact_point is None:
-        raise FileFormatError(f"{s.path}: needs contact_mask, contact_link and contact_point for contact plots")
+    mu = friction if friction is not None else s.friction
+    if mu is None:
+        raise FileFormatError(f"{s.path}: friction: the file has none; pass the scene's friction coefficient")
     T, K = s.contact_mask.shape
     side_idx, link_idx = s.contact_side_link()
     names = s.contact_link_names()
@@ -92,44 +83,28 @@ def finger_contacts(solution, hand_models: dict, *, slide_speed: float = 0.01,
                 cache[key] = col
             finger_col[t, k] = cache[key]
     N = len(columns)
-    local = _object_frame(s.contact_point, s.object_pose)
-    mu = friction if friction is not None else (s.friction if s.friction is not None else 0.5)
     in_contact = np.zeros((T, N), dtype=bool)
-    centre = np.zeros((T, N, 3))
+    sliding = np.zeros((T, N), dtype=bool)
     normal = np.zeros((T, N))
     tangential = np.zeros((T, N))
+    n = s.contact_normal / np.maximum(np.linalg.norm(s.contact_normal, axis=-1, keepdims=True), 1e-12)
     for j in range(N):
         m = finger_col == j  # (T, K)
-        cnt = m.sum(1)
-        in_contact[:, j] = cnt > 0
-        centre[:, j] = (local * m[..., None]).sum(1) / np.maximum(cnt, 1)[:, None]
-        if s.contact_force is not None:
-            f = s.contact_force * m[..., None]
-            if s.contact_normal is not None:
-                n = s.contact_normal / np.maximum(np.linalg.norm(s.contact_normal, axis=-1, keepdims=True), 1e-12)
-                fn = (f * n).sum(-1)  # (T, K)
-                normal[:, j] = fn.sum(1)
-                tangential[:, j] = np.linalg.norm((f - fn[..., None] * n).sum(1), axis=-1)
-            else:
-                normal[:, j] = np.linalg.norm(f.sum(1), axis=-1)
-    speed = np.zeros((T, N))
-    if T > 1:
-        step = np.linalg.norm(np.diff(centre, axis=0), axis=-1) * s.fps  # (T-1, N)
-        both = in_contact[1:] & in_contact[:-1]
-        step = np.where(both, step, 0.0)
-        speed[1:] = np.maximum(speed[1:], step)
-        speed[:-1] = np.maximum(speed[:-1], step)
-    state = np.where(in_contact, np.where(speed > slide_speed, SLIDING, STATIC), FREE)
+        in_contact[:, j] = m.any(1)
+        sliding[:, j] = (m & s.contact_sliding).any(1)
+        f = s.contact_force * m[..., None]
+        fn = (f * n).sum(-1)  # (T, K)
+        normal[:, j] = fn.sum(1)
+        tangential[:, j] = np.linalg.norm((f - fn[..., None] * n).sum(1), axis=-1)
+    state = np.where(in_contact, np.where(sliding, SLIDING, STATIC), FREE)
     return FingerContacts(labels=tuple(c[2] for c in columns), state=state, normal=normal, tangential=tangential,
-                          speed=speed, friction=float(mu), fps=s.fps)
+                          friction=float(mu), fps=s.fps)
 
 
 def solution_summary(solution) -> str:
     """One line of key numbers of a solution: mean contacts per frame and the largest contact force."""
-    parts = []
-    if solution.contact_mask is not None:
-        parts.append(f"{solution.contact_mask.sum(1).mean():.1f} contacts/frame")
-    if solution.contact_force is not None and solution.contact_mask is not None and solution.contact_mask.any():
+    parts = [f"{solution.contact_mask.sum(1).mean():.1f} contacts/frame"]
+    if solution.contact_mask.any():
         fmax = float(np.linalg.norm(solution.contact_force[solution.contact_mask], axis=-1).max())
         parts.append(f"max force {fmax:.1f} N")
     return ", ".join(parts)

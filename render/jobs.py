@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 
 from torchhand.errors import InputValueError, MissingFileError
+from torchhand.result import Result, Solution, load_result, load_solution, parse_solution_spec
 
 from .clip import Clip, clip_from_solution
 from .compose import RenderOptions, write_video
 from .contact_analysis import finger_contacts, solution_summary
-from .results import ResultDir, Solution, load_result_dir, load_solution, parse_solution_spec
 
-__all__ = ["parse_size", "parse_frames", "stats_line", "result_clips", "render_result", "plot_result",
-           "open_result"]
+__all__ = ["parse_size", "parse_frames", "stats_line", "solution_title", "result_clips", "render_result",
+           "plot_result", "open_result"]
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -64,7 +64,13 @@ def stats_line(stats: dict) -> str:
     return ", ".join(parts)
 
 
-def open_result(path) -> tuple[ResultDir | None, list]:
+def solution_title(i: int, sol: Solution) -> str:
+    """``"solution 2: sliding"``, with ``", unsmoothed"`` when ``q`` is not the smoothed motion."""
+    return f"solution {i}" + (f": {sol.strategy}" if sol.strategy else "") + \
+        ("" if sol.reconstructed else ", unsmoothed")
+
+
+def open_result(path) -> tuple[Result | None, list]:
     """A result directory, or a lone solution npz (drawn as hands alone): (result or None, solution files)."""
     p = Path(path)
     if p.is_file() and p.suffix == ".npz":
@@ -72,8 +78,12 @@ def open_result(path) -> tuple[ResultDir | None, list]:
     if not p.exists():
         raise MissingFileError(f"result directory {p} does not exist (expected the output of `torchhand "
                                f"synthesize` or a solution .npz)")
-    result = load_result_dir(p)
+    result = load_result(p)
     return result, list(result.solution_files)
+
+
+def _solution(result: Result | None, files: list, i: int) -> Solution:
+    return result.solution(i) if result is not None else load_solution(files[i])
 
 
 def _lone_solution_clip(sol: Solution, labels) -> Clip:
@@ -101,8 +111,8 @@ def result_clips(path, solutions: str | None = None, *, compare=None, labels: bo
     if compare is not None:
         clips.append(_reference_clip(compare, result))
     for i in indices:
-        sol = load_solution(files[i])
-        text = [f"solution {i}" + (f": {sol.strategy}" if sol.strategy else ""), solution_summary(sol), stats]
+        sol = _solution(result, files, i)
+        text = [solution_title(i, sol), solution_summary(sol), stats]
         if compare is not None:
             text[0] = f"synthesized, {text[0]}"
         text = [t for t in text if t] if labels else []
@@ -111,19 +121,17 @@ def result_clips(path, solutions: str | None = None, *, compare=None, labels: bo
     return clips
 
 
-def _reference_clip(reference, result: ResultDir | None) -> Clip:
+def _reference_clip(reference, result: Result | None) -> Clip:
     ref = Path(reference)
     if ref.is_dir():
         ref_result, files = open_result(ref)
         if not files:
             raise InputValueError(f"--compare {ref}: the result directory has no solutions")
-        sol = load_solution(files[0])
-        return clip_from_solution(ref_result, sol, labels=[f"reference: {ref.name}", solution_summary(sol)])
-    sol = load_solution(ref)
-    label = [f"reference: {ref.name}", solution_summary(sol)]
-    if result is None:
-        return _lone_solution_clip(sol, label)
-    return clip_from_solution(result, sol, labels=[t for t in label if t])
+        sol, where = ref_result.solution(0), ref_result
+    else:
+        sol, where = load_solution(ref), result  # an npz reference is drawn in the result's scene
+    label = [f"reference: {ref.name}" + ("" if sol.reconstructed else ", unsmoothed"), solution_summary(sol)]
+    return clip_from_solution(where, sol, labels=label) if where is not None else _lone_solution_clip(sol, label)
 
 
 def render_result(path, out, *, solutions: str | None = None, grid: bool = False, size=(640, 480),
@@ -166,50 +174,47 @@ def render_result(path, out, *, solutions: str | None = None, grid: bool = False
     return {"out": str(written), "frames": n, "format": fmt, "panels": len(clips), "size": (w, h)}
 
 
-def plot_result(path, out_dir, *, solution: int = 0, solutions: str | None = "all", slide_speed: float = 0.01,
+def plot_result(path, out_dir, *, solution: int = 0, solutions: str | None = "all",
                 max_series: int = 8) -> list[Path]:
     """Write contact_timeline.png, forces.png and joints.png for the result at ``path`` into ``out_dir``.
 
     solution: the solution whose contacts and forces are plotted; solutions: those overlaid in joints.png (at most
-    ``max_series``).
+    ``max_series``). Sliding is the solution's stored ``contact_sliding``.
+    Titles and legend entries of a solution written unsmoothed say "unsmoothed".
     """
     from .plots import plot_contact_timeline, plot_forces, plot_joints
 
-    if not (np.isfinite(slide_speed) and slide_speed > 0):
-        raise InputValueError(f"--slide-speed: expected a positive speed in m/s, got {slide_speed}")
     result, files = open_result(path)
+    index = parse_solution_spec(str(solution), len(files))[0]
+    sol = _solution(result, files, index)
     if result is None:
         from torchhand.hand import default_hand
 
-        models = None
+        models = {h.side: default_hand(h.side) for h in sol.hands}
     else:
         models = result.hand_models
-    index = parse_solution_spec(str(solution), len(files))[0]
-    sol = load_solution(files[index])
-    if models is None:
-        models = {h.side: default_hand(h.side if h.side in ("right", "left") else "right") for h in sol.hands}
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputValueError(f"--out {out}: expected a directory, got a file")
     out.mkdir(parents=True, exist_ok=True)
     name = Path(path).name
     written = []
-    if sol.contact_mask is not None and sol.contact_link is not None and sol.contact_point is not None:
-        fc = finger_contacts(sol, models, slide_speed=slide_speed,
-                             friction=sol.friction if sol.friction is not None else
-                             (result.scene.friction if result is not None else None))
-        tag = f"{name}, solution {index}" + (f" ({sol.strategy})" if sol.strategy else "")
-        written.append(plot_contact_timeline(fc, out / "contact_timeline.png",
-                                             f"contact state per finger: {tag} (sliding > {slide_speed:g} m/s)"))
-        written.append(plot_forces(fc, out / "forces.png", f"contact forces per finger: {tag}"))
+    fc = finger_contacts(sol, models, friction=sol.friction if sol.friction is not None else
+                         (result.scene.friction if result is not None else None))
+    tag = f"{name}, {solution_title(index, sol)}"
+    written.append(plot_contact_timeline(fc, out / "contact_timeline.png", f"contact state per finger: {tag}"))
+    written.append(plot_forces(fc, out / "forces.png", f"contact forces per finger: {tag}"))
     chosen = parse_solution_spec(solutions, len(files))[:max_series]
+    loaded = [(i, _solution(result, files, i)) for i in chosen]
     for h in sol.hands:
         series = []
-        for i in chosen:
-            s = load_solution(files[i])
-            hs = s.hand(h.side) or s.hands[0]
-            series.append((f"solution {i}" + (f" ({s.strategy})" if s.strategy else ""), hs.q, hs.joint_names))
+        for i, s in loaded:
+            hs = s.hand(h.side)
+            notes = ([s.strategy] if s.strategy else []) + ([] if s.reconstructed else ["unsmoothed"])
+            series.append((f"solution {i}" + (f" ({', '.join(notes)})" if notes else ""), hs.q, hs.joint_names))
         suffix = "" if len(sol.hands) == 1 else f"_{h.side}"
+        unsmoothed = [i for i, s in loaded if not s.reconstructed]
+        note = f" (unsmoothed: solution {', '.join(map(str, unsmoothed))})" if unsmoothed else ""
         written.append(plot_joints(series, models[h.side], sol.fps, out / f"joints{suffix}.png",
-                                   f"flexion joints per finger ({h.side} hand): {name}"))
+                                   f"flexion joints per finger ({h.side} hand): {name}{note}"))
     return written

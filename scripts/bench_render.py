@@ -27,7 +27,7 @@ def bench_render(scene: str = "box-turn", seconds: float = 2.0, size=(640, 480),
     from torchhand.render.backend import select_platform
     from torchhand.render.clip import clip_from_solution
     from torchhand.render.compose import RenderOptions, panel_camera, render_frames
-    from torchhand.render.results import load_result_dir
+    from torchhand.result import load_result
 
     import torchhand
 
@@ -36,7 +36,7 @@ def bench_render(scene: str = "box-turn", seconds: float = 2.0, size=(640, 480),
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         root = write_fixture_result(Path(tmp) / scene, scene, frames=frames, solutions=1)
-        result = load_result_dir(root)
+        result = load_result(root)
         clip = clip_from_solution(result, result.solution(0), labels=["solution 0"])
         platform = select_platform()
         for sh in shadows:

@@ -26,6 +26,12 @@ _LAZY = {
     "load_object": ".objects",
     "Scene": ".scene",
     "load_scene": ".scene",
+    "load_result": ".result",
+    "Result": ".result",
+    "synthesize": ".synthesis.pipeline",
+    "SynthesisResult": ".synthesis.pipeline",
+    "check_result": ".check",
+    "CheckReport": ".check",
 }
 
 

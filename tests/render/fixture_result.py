@@ -1,4 +1,4 @@
-"""Test fixture: a small synthesis result directory written by hand, following the result contract.
+"""Test fixture: a small result directory written by hand, in the format of docs/result_format.md.
 
 :func:`write_fixture_result` cuts a built-in scene to a few frames, puts each hand at its rest pose along its wrist
 track (solution ``i`` flexes the fingers a little more), and fabricates hand-object contacts at the object surface
@@ -7,7 +7,9 @@ some friction), object-table contacts with forces that carry the object's weight
 not run any synthesis.
 
 Fabricated contact pattern per hand: thumb, index and middle touch in every frame, the ring finger from the middle
-frame on, the little finger never; the index contact slides 2 mm per frame over the object from frame 4 on.
+frame on, the little finger never; the index contact slides 2 mm per frame over the object from frame 4 on (marked in
+``contact_sliding``). The render tests read a real ``torchhand synthesize`` output (:mod:`.real_result`) for one hand;
+this fixture gives them two hands cheaply, and the render benchmark a clip of any length.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import trimesh
 
 import torchhand
 from torchhand.hand.mjcf import save_mjcf
+from torchhand.result import FORMAT_VERSION
 from torchhand.scene import environment_contacts
 
 FORCE_N = 3.0
@@ -50,12 +53,13 @@ def write_fixture_result(root: Path, scene_name: str = "box-turn", frames: int =
     env_force *= env_mask[..., None]
     two = len(scene.hands) == 2
     for s in range(solutions):
-        data: dict = {"fps": np.float64(scene.fps), "object_pose": obj_pose,
+        data: dict = {"format_version": np.array(FORMAT_VERSION), "reconstructed": np.array(True),
+                      "fps": np.float64(scene.fps), "object_pose": obj_pose,
                       "strategy": np.array(["static", "sliding", "relocating", "mixed"][s % 4]),
                       "friction": np.float64(scene.friction), "env_contact_mask": env_mask,
                       "env_contact_point": env_point, "env_contact_force": env_force}
         names: list[str] = []
-        c_mask, c_link, c_point, c_normal, c_force = [], [], [], [], []
+        c_mask, c_link, c_point, c_normal, c_force, c_slide = [], [], [], [], [], []
         for t in scene.hands:
             hand = hands[t.side]
             q = hand.q_rest.expand(frames, -1).clone()
@@ -96,13 +100,17 @@ def write_fixture_result(root: Path, scene_name: str = "box-turn", frames: int =
             c_point.append(point * mask[..., None])
             c_normal.append(normal * mask[..., None])
             c_force.append(force * mask[..., None])
+            slide = np.zeros((frames, 5), dtype=bool)
+            slide[4:, 1] = True
+            c_slide.append(slide)
         data.update(joint_names=np.array(hands[scene.hands[0].side].joint_names), contact_link_name=np.array(names),
                     contact_mask=np.concatenate(c_mask, 1), contact_link=np.concatenate(c_link, 1),
                     contact_point=np.concatenate(c_point, 1), contact_normal=np.concatenate(c_normal, 1),
-                    contact_force=np.concatenate(c_force, 1))
+                    contact_force=np.concatenate(c_force, 1), contact_sliding=np.concatenate(c_slide, 1))
         np.savez(root / "solutions" / f"sol_{s:03d}.npz", **data)
-    stats = {"epsilon": 0.01, "T": frames, "time_s": 1.5, "solutions": solutions, "dead_ends": 3,
-             "success_ratio": 0.4, "solution_ratio": 0.2, "nodes_tested": 1200, "nodes_per_second": 800.0}
+    stats = {"format_version": FORMAT_VERSION, "complete": True, "epsilon": 0.01, "T": frames, "time_s": 1.5,
+             "solutions": solutions, "dead_ends": 3, "success_ratio": 0.4, "solution_ratio": 0.2, "nodes_tested": 1200,
+             "nodes_per_second": 800.0}
     (root / "stats.json").write_text(json.dumps(stats))
     return root
 

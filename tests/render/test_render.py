@@ -1,7 +1,9 @@
 """Headless rendering of a built-in scene: frame count, content where the camera says, overlays, reference image.
 
-The reference image ``tests/data/render_ref_box_turn.png`` is frame 5 of the box-turn fixture clip (320x240,
-downsampled 2x). After an intended change of the drawing, regenerate it with
+The clip is the first 10 frames of solution 0 of a real ``torchhand synthesize box-turn`` output (the command is
+``real_result.SYNTHESIZE``). The reference image ``tests/data/render_ref_box_turn.png`` is its frame 5 (320x240,
+downsampled 2x). After an intended change of the drawing, or of the synthesis (which changes the motion drawn),
+regenerate it with
 
     TORCHHAND_REGEN_RENDER_REF=1 python -m pytest -q tests/render/test_render.py -k reference
 
@@ -11,6 +13,8 @@ and look at the new image before committing it.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
+from itertools import islice
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -19,9 +23,9 @@ import pytest
 
 from torchhand.render.clip import Clip, clip_from_solution
 from torchhand.render.compose import RenderOptions, panel_camera, render_frames, render_hand_motion
-from torchhand.render.results import load_result_dir
+from torchhand.result import load_result
 
-from .fixture_result import rest_pose_motion
+from .fixture_result import rest_pose_motion, write_fixture_result
 
 REF = Path(__file__).resolve().parents[1] / "data" / "render_ref_box_turn.png"
 W, H = 320, 240
@@ -29,19 +33,23 @@ W, H = 320, 240
 
 @pytest.fixture(scope="module")
 def rendered(box_turn_result):
-    result = load_result_dir(box_turn_result)
-    clip = clip_from_solution(result, result.solution(0))
+    result = load_result(box_turn_result)
+    clip = clip_from_solution(result, result.solution(0)).frames(0, 10)
     opts = RenderOptions(W, H)
     camera = panel_camera([clip], opts, clip.T, clip.fps)
     frames = list(render_frames([clip], opts, camera=camera))
     # The same view without hand and object (table only): what the background looks like at each pixel.
     plate = Clip(hands=(), fps=clip.fps, object_pose=clip.object_pose, table_height=clip.table_height)
-    empty = next(iter(render_frames([plate], RenderOptions(W, H, legend=False), camera=camera)))
-    return clip, camera, frames, empty
+    bare = RenderOptions(W, H, legend=False)
+    empty = next(iter(render_frames([plate], bare, camera=camera)))
+    # Frame 5 with the object alone and with the hand alone (no overlays): where each of them shows.
+    alone = [next(islice(render_frames([c], bare, camera=camera), 5, None)) for c in
+             (replace(plate, object_mesh=clip.object_mesh), replace(plate, hands=clip.hands))]
+    return clip, camera, frames, empty, alone
 
 
 def test_frame_count_size_and_not_blank(rendered):
-    clip, _, frames, _ = rendered
+    clip, _, frames, _, _ = rendered
     assert len(frames) == clip.T == 10
     for f in frames:
         assert f.shape == (H, W, 3) and f.dtype == np.uint8
@@ -50,7 +58,7 @@ def test_frame_count_size_and_not_blank(rendered):
 
 
 def test_hand_and_object_where_the_camera_projects_them(rendered):
-    clip, camera, frames, empty = rendered
+    clip, camera, frames, empty, (object_alone, hand_alone) = rendered
     t = 5
     img, bg = frames[t].astype(int), empty.astype(int)
     hand = clip.hands[0]
@@ -67,26 +75,50 @@ def test_hand_and_object_where_the_camera_projects_them(rendered):
     # Skin colour (red above blue) at most link centres.
     skin = img[px[:, 1], px[:, 0]]
     assert (skin[:, 0] > skin[:, 2] + 15).mean() > 0.7
-    # The object (bluish, translucent) around its projected centre.
+    # The object (bluish, translucent) where it projects: its centre lies in the bluish pixels of the object drawn
+    # alone, and where the hand (or its shadow) does not cover them the frame is blue over the table too.
     c = clip.object_pose[t, :3, :3] @ clip.object_mesh.centroid + clip.object_pose[t, :3, 3]
     (u, v), = np.round(camera.project(c[None], t)[0]).astype(int)
-    window = img[v - 3:v + 4, u - 3:u + 4].reshape(-1, 3)
-    assert (np.abs(window - bg[v - 3:v + 4, u - 3:u + 4].reshape(-1, 3)).sum(-1) > 20).all()
-    assert (window[:, 2] > window[:, 0] + 10).all()  # blue over the table
+    oa = object_alone.astype(int)
+    obj = (np.abs(oa - bg).sum(-1) > 20) & (oa[..., 2] > oa[..., 0] + 10)  # the object, not its shadow
+    assert obj[v - 3:v + 4, u - 3:u + 4].all()
+    free = obj & ~(np.abs(hand_alone.astype(int) - bg).sum(-1) > 10)
+    free[H // 2:, : W // 2] = False  # the legend
+    assert free.sum() > 300, free.sum()
+    assert (img[free][:, 2] > img[free][:, 0] + 10).mean() > 0.9
 
 
-def test_overlay_colours_present(rendered):
-    _, _, frames, _ = rendered
-    img = frames[5].astype(int)
-    r, g, b = img[..., 0], img[..., 1], img[..., 2]
-    cyan = (r < 90) & (g > 150) & (b > 170)
-    yellow = (r > 200) & (g > 150) & (b < 80)
-    red = (r > 150) & (g < 70) & (b < 70)
-    # The legend has one swatch of each; the scene adds dots and arrows beyond those.
-    assert cyan.sum() > 40 and yellow.sum() > 40 and red.sum() > 50, (cyan.sum(), yellow.sum(), red.sum())
-    legend = np.zeros_like(cyan)
+def _overlay_pixels(img: np.ndarray) -> dict:
+    """Pixels of each overlay colour outside the legend (bottom-left quarter)."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    legend = np.zeros(img.shape[:2], dtype=bool)
     legend[H // 2:, : W // 2] = True
-    assert (red & ~legend).sum() > 20  # force arrows in the scene, not only the legend swatch
+    colours = {"cyan": (r < 90) & (g > 150) & (b > 170), "yellow": (r > 200) & (g > 150) & (b < 80),
+               "red": (r > 150) & (g < 70) & (b < 70)}
+    return {k: int((m & ~legend).sum()) for k, m in colours.items()} | {
+        f"{k}_legend": int((m & legend).sum()) for k, m in colours.items()}
+
+
+def test_overlay_colours_present(tmp_path):
+    # Fabricated contacts at the fingertip pads, 3 N each (fixture_result): every overlay shows in the scene.
+    result = load_result(write_fixture_result(tmp_path / "box-turn", "box-turn", frames=6, solutions=1))
+    clip = clip_from_solution(result, result.solution(0))
+    opts = RenderOptions(W, H)
+    img = next(islice(render_frames([clip], opts, camera=panel_camera([clip], opts, clip.T, clip.fps)), 5, None))
+    px = _overlay_pixels(img)
+    assert px["cyan_legend"] > 20 and px["yellow_legend"] > 20 and px["red_legend"] > 20, px  # the swatches
+    assert px["cyan"] > 10 and px["yellow"] > 3 and px["red"] > 20, px  # dots and force arrows in the scene
+
+
+def test_real_overlays(rendered):
+    # The synthesized box turns on the table in these frames: its table contacts show in every frame, hand contacts
+    # where the fingers do not hide them, and force arrows in some frame outside the legend's corner (from this
+    # camera most arrows point into that corner).
+    clip, _, frames, _, _ = rendered
+    assert clip.env_contact_mask[:10].any(-1).all() and clip.contact_mask[:10].any(-1).all()
+    px = [_overlay_pixels(f) for f in frames]
+    assert all(p["yellow"] > 0 and p["cyan_legend"] > 20 for p in px), px
+    assert max(p["cyan"] for p in px) > 2 and max(p["red"] for p in px) > 3, px
 
 
 def _half(img: np.ndarray) -> np.ndarray:
@@ -103,8 +135,13 @@ def test_reference_image(rendered):
         pytest.skip(f"regenerated {REF}")
     ref = iio.imread(REF)
     assert ref.shape == frame.shape
-    diff = np.abs(ref.astype(int) - frame.astype(int)).mean()
-    assert diff < 6.0, f"mean abs difference {diff:.2f} to {REF.name} (0-255 levels)"
+    # The same renderer reproduces the image exactly. The neighbouring frames (one frame of motion) differ by a
+    # mean of about 5 levels with 7% of the pixels off by more than 40, the other solution's frame 5 by 3.9 and
+    # 5.5%; the bounds leave room for another OpenGL implementation's edges and shading only.
+    d = np.abs(ref.astype(int) - frame.astype(int))
+    mean, far = d.mean(), (d.max(-1) > 40).mean()
+    assert mean < 1.5 and far < 0.01, (f"{REF.name}: mean abs difference {mean:.2f} levels (0-255), "
+                                       f"{100 * far:.1f}% of the pixels off by more than 40")
 
 
 def test_hand_alone():
@@ -118,7 +155,7 @@ def test_hand_alone():
 
 
 def test_two_hands(two_hand_result):
-    result = load_result_dir(two_hand_result)
+    result = load_result(two_hand_result)
     clip = clip_from_solution(result, result.solution(0))
     assert len(clip.hands) == 2
     opts = RenderOptions(160, 120, shadows=False, legend=False)

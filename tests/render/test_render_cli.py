@@ -27,7 +27,8 @@ def _one_line_error(capsys, *needles):
 
 def test_render_mp4(box_turn_result, tmp_path, capsys):
     out = tmp_path / "clip.mp4"
-    assert main(["render", str(box_turn_result), "--out", str(out), "--size", "321x241", "--no-progress"]) == 0
+    assert main(["render", str(box_turn_result), "--out", str(out), "--size", "321x241", "--frames", "0:10",
+                 "--no-progress"]) == 0
     assert "10 frames, 320x240" in capsys.readouterr().out  # cropped to even sizes for yuv420p
     frames = iio.imread(out, plugin="pyav") if _has_pyav() else _ffmpeg_frames(out)
     assert frames.shape[0] == 10 and frames.shape[1:3] == (240, 320)
@@ -55,7 +56,10 @@ def test_render_grid_gif_and_png_frames(box_turn_result, tmp_path):
     assert main(["render", str(box_turn_result), "--out", str(gif), "--grid", "--size", "96x72", "--no-shadows",
                  "--frames", "0:4", "--no-progress"]) == 0
     frames = iio.imread(gif, index=None)
-    assert frames.shape[0] == 4 and frames.shape[1:3] == (72, 2 * 96 + 2)
+    from torchhand.render.overlay import grid_shape
+
+    rows, cols = grid_shape(len(list((box_turn_result / "solutions").glob("sol_*.npz"))))
+    assert frames.shape[0] == 4 and frames.shape[1:3] == (rows * 72 + 2 * (rows - 1), cols * 96 + 2 * (cols - 1))
     png = tmp_path / "frames"
     assert main(["render", str(box_turn_result), "--out", str(png), "--format", "png", "--size", "96x72",
                  "--frames", "2:5", "--orbit", "--no-shadows", "--no-progress"]) == 0

@@ -1,66 +1,88 @@
-"""Reading result files, per-finger contact states, camera projection and the choice of the OpenGL platform."""
+"""Per-finger contact states from the stored sliding, "unsmoothed" labels and titles, camera projection and the
+choice of the OpenGL platform. (Reading result files: tests/torchhand/test_result.py.)"""
 
 from __future__ import annotations
+
+import shutil
 
 import numpy as np
 import pytest
 
 import torchhand
-from torchhand.errors import FileFormatError, MissingFileError, ShapeError, TorchhandError
 from torchhand.render import backend
 from torchhand.render.camera import frame_points, look_at
 from torchhand.render.contact_analysis import FREE, SLIDING, STATIC, finger_contacts
-from torchhand.render.results import load_result_dir, load_solution, parse_solution_spec
+from torchhand.result import load_result
 
-
-def test_load_result_dir(box_turn_result):
-    r = load_result_dir(box_turn_result)
-    assert r.scene.T == 10 and len(r.solution_files) == 2 and r.stats["solutions"] == 2
-    s = r.solution(1)
-    assert s.T == 10 and s.hands[0].q.shape == (10, 30) and s.strategy == "sliding"
-    assert s.contact_point.shape == (10, 5, 3) and s.contact_mask.dtype == bool
-    assert s.friction == pytest.approx(r.scene.friction)
+from .fixture_result import write_fixture_result
 
 
 def test_two_hand_solution(two_hand_result):
-    s = load_result_dir(two_hand_result).solution(0)
+    s = load_result(two_hand_result).solution(0)
     assert [h.side for h in s.hands] == ["right", "left"]
     side, link = s.contact_side_link()
     assert set(side[s.contact_mask].tolist()) == {0, 1}
     assert all(n.startswith(("right/", "left/")) for n in s.contact_link_name)
 
 
-def test_solution_errors(box_turn_result, tmp_path):
-    with pytest.raises(MissingFileError):
-        load_solution(tmp_path / "none.npz")
-    data = dict(np.load(box_turn_result / "solutions" / "sol_000.npz"))
-    data["root_pose"] = data["root_pose"][:, :3]
-    np.savez(tmp_path / "bad.npz", **data)
-    with pytest.raises(ShapeError, match="root_pose: expected shape"):
-        load_solution(tmp_path / "bad.npz")
-    data = dict(np.load(box_turn_result / "solutions" / "sol_000.npz"))
-    data["q"][3, 2] = np.nan
-    np.savez(tmp_path / "nan.npz", **data)
-    with pytest.raises(FileFormatError, match="NaN"):
-        load_solution(tmp_path / "nan.npz")
-    assert parse_solution_spec("all", 3) == [0, 1, 2] and parse_solution_spec("0,2", 3) == [0, 2]
-    assert parse_solution_spec("1:", 3) == [1, 2]
-    with pytest.raises(TorchhandError):
-        parse_solution_spec("3", 3)
-
-
-def test_finger_states_follow_the_fabricated_pattern(box_turn_result):
-    r = load_result_dir(box_turn_result)
-    fc = finger_contacts(r.solution(0), r.hand_models, slide_speed=0.01)
+def test_finger_states_follow_the_stored_sliding(tmp_path):
+    r = load_result(write_fixture_result(tmp_path / "box-turn", "box-turn", frames=10, solutions=1))
+    fc = finger_contacts(r.solution(0), r.hand_models)
     assert fc.labels == ("thumb", "index", "middle", "ring", "little")
     st = fc.state
     assert (st[:, 0] == STATIC).all() and (st[:, 2] == STATIC).all()
-    assert (st[:3, 1] == STATIC).all() and (st[4:, 1] == SLIDING).all()  # 2 mm/frame at 30 fps = 6 cm/s
+    assert (st[:4, 1] == STATIC).all() and (st[4:, 1] == SLIDING).all()  # contact_sliding is set from frame 4
     assert (st[:5, 3] == FREE).all() and (st[5:, 3] != FREE).all()
     assert (st[:, 4] == FREE).all()
     on = st != FREE
     assert np.allclose(fc.normal[on], 3.0) and np.allclose(fc.tangential[on], 0.9, atol=0.05)
     assert fc.friction == pytest.approx(r.scene.friction)
+
+
+def test_finger_states_of_a_real_result(box_turn_result):
+    r = load_result(box_turn_result)
+    hand = r.hand_models["right"]
+    for s in r.solutions:
+        fc = finger_contacts(s, r.hand_models)
+        finger = np.where(s.contact_mask, np.asarray(hand.link_finger)[np.maximum(s.contact_link, 0)], -1)
+        n = s.contact_normal / np.maximum(np.linalg.norm(s.contact_normal, axis=-1, keepdims=True), 1e-12)
+        for f in range(hand.num_fingers):
+            m = finger == f
+            want = np.where(m.any(1), np.where((m & s.contact_sliding).any(1), SLIDING, STATIC), FREE)
+            assert np.array_equal(fc.state[:, f], want), f
+            assert np.allclose(fc.normal[:, f], ((s.contact_force * n).sum(-1) * m).sum(1))
+        assert (fc.state != FREE).any()
+
+
+def _unsmoothed_copy(result_dir, tmp_path, index=1):
+    root = tmp_path / "result"
+    shutil.copytree(result_dir, root)
+    f = root / "solutions" / f"sol_{index:03d}.npz"
+    with np.load(f) as z:
+        data = {k: z[k] for k in z.files}
+    np.savez(f, **{**data, "reconstructed": np.array(False)})
+    return root
+
+
+def test_unsmoothed_in_labels_and_titles(box_turn_result, tmp_path, monkeypatch):
+    from torchhand.render import jobs, plots
+
+    root = _unsmoothed_copy(box_turn_result, tmp_path)
+    clips = jobs.result_clips(root, "all")
+    assert "unsmoothed" not in clips[0].labels[0] and clips[1].labels[0].endswith(", unsmoothed")
+    ref = jobs.result_clips(box_turn_result, "0", compare=root / "solutions" / "sol_001.npz")
+    assert ref[0].labels[0] == "reference: sol_001.npz, unsmoothed" and "unsmoothed" not in ref[1].labels[0]
+    titles = []
+    for name in ("plot_contact_timeline", "plot_forces"):
+        monkeypatch.setattr(plots, name, lambda fc, path, title="": titles.append(title) or path)
+    monkeypatch.setattr(plots, "plot_joints", lambda series, hand, fps, path, title="":
+                        titles.append((title, [s[0] for s in series])) or path)
+    jobs.plot_result(root, tmp_path / "p1", solution=0)
+    jobs.plot_result(root, tmp_path / "p2", solution=1)
+    assert not any("unsmoothed" in t for t in titles[:2]) and all("unsmoothed" in t for t in titles[3:5])
+    joints_title, legend = titles[2]
+    assert joints_title.endswith("(unsmoothed: solution 1)") and "unsmoothed" in legend[1]
+    assert "unsmoothed" not in legend[0]
 
 
 def test_camera_projection_matches_look_at():

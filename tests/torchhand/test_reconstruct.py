@@ -412,3 +412,49 @@ def test_nan_input_is_reported_not_hidden(hand):
     res = reconstruct_motion(hand, root, q, ContactTrack.empty(T), max_inner=3)
     assert res.status is ReconstructStatus.DIVERGED
     assert int(res.frame_status[2]) == int(ReconstructStatus.DIVERGED)
+
+
+# --- the table and the joint-speed bound (reconstruct_bounds) ------------------------------------------------------
+
+def test_joint_speed_bound_holds_through_a_jump(hand):
+    """A free finger whose searched path jumps by 1.2 rad in one frame: with max_joint_step the reconstructed
+    motion moves no joint more than the bound per frame (Eq. 9 alone spreads the jump but does not bound it)."""
+    T = 30
+    root = wrist_track(T)
+    q = hand.q_rest.expand(T, -1).clone()
+    j = hand.joint_names.index("index_mcp_flex")
+    q[15:, j] += 1.2
+    contacts = ContactTrack.empty(T)
+    step = 8.0 / 30.0
+    free = torch.zeros(T, hand.num_fingers, dtype=torch.bool)          # held to the searched pose (weakly)
+    plain = reconstruct_motion(hand, root, q, contacts, free=free, search_weight=30.0)
+    bounded = reconstruct_motion(hand, root, q, contacts, free=free, search_weight=30.0, max_joint_step=step)
+    assert float((plain.q[1:] - plain.q[:-1]).abs().max()) > step          # the bound is not vacuous here
+    assert float((bounded.q[1:] - bounded.q[:-1]).abs().max()) <= step * (1 + 1e-3)
+    assert float(bounded.q[-1, j] - bounded.q[0, j]) > 1.0                 # it still gets there
+
+
+def test_table_keeps_finger_capsules_above_the_plane(hand):
+    """A motion whose flexed fingers dip 5 mm under a table plane: with table_height every movable finger
+    capsule ends above it (within the penetration tolerance), and the result's penetration reports it."""
+    from torchhand.synthesis.reconstruct_bounds import table_depth
+
+    T = 12
+    root = wrist_track(T)
+    q = hand.q_rest.expand(T, -1).clone()
+    for i, name in enumerate(hand.joint_names):
+        if name.endswith(("mcp_flex", "pip")) and not name.startswith("thumb"):
+            q[:, i] = 0.8 * hand.joint_limits[i, 1]
+    depth = table_depth(hand, hand.forward_kinematics(q, root), 0.0)
+    finger = hand.link_finger >= 0
+    # put the plane 5 mm above the lowest finger capsule
+    lowest = -float(depth[:, finger].amax())
+    table = lowest + 0.005
+    res = reconstruct_motion(hand, root, q, ContactTrack.empty(T), table_height=table, penetration_tol=5e-4)
+    after = table_depth(hand, hand.forward_kinematics(res.q, root), table)
+    from torchhand.synthesis.reconstruct import _finger_layout
+
+    movable = _finger_layout(hand).movable                 # links the finger joints move (not the metacarpals)
+    assert float(depth[:, movable].amax()) > 0.004
+    assert float(after[:, movable].amax()) <= 5e-4 + 1e-5
+    assert float(res.penetration.max()) <= 5e-4 + 1e-5

@@ -15,7 +15,7 @@ import sys
 from ..errors import TorchhandError
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
-_COMMANDS = ("scene", "hand", "inspect", "synthesize", "render", "plot")
+_COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # Idle OpenMP threads sleep instead of spinning, so that a busy machine does not starve torch's thread pool
+    # (read once, when torch loads: the subcommands import it below). See torchhand/cli/_common.py.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -1,8 +1,8 @@
 """``torchhand plot RESULT_DIR --out DIR``: PNG plots of a result directory (matplotlib, no display needed).
 
 Writes into DIR:
-  contact_timeline.png  per finger: free (no contact), static, or sliding (its contact point moves over the object
-                        faster than --slide-speed), over time, for --solution
+  contact_timeline.png  per finger: free (no contact), static, or sliding (the solution's stored contact_sliding),
+                        over time, for --solution
   forces.png            per finger: normal and tangential contact-force magnitudes with the friction-cone limit
                         mu * f_n, for --solution
   joints.png            the flexion joints of each finger over time, the chosen --solutions overlaid
@@ -22,15 +22,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--solution", type=int, default=0, help="solution for the contact and force plots (default 0)")
     p.add_argument("--solutions", default="all", help="solutions overlaid in joints.png: 0,1,2 or all (default all, "
                                                       "at most 8)")
-    p.add_argument("--slide-speed", type=float, default=0.01,
-                   help="contact-point speed on the object above which a finger slides, m/s (default 0.01)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from torchhand.render.jobs import plot_result
 
-    written = plot_result(args.result, args.out, solution=args.solution, solutions=args.solutions,
-                          slide_speed=args.slide_speed)
+    written = plot_result(args.result, args.out, solution=args.solution, solutions=args.solutions)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0

@@ -5,7 +5,8 @@ kinematically and dynamically feasible finger motions, which are then reconstruc
 again. SCENE is a built-in scene name (``torchhand scene list``) or a scene directory, e.g. one written by
 ``torchhand scene import-mocap --manipnet ../shared/data/mocap/manipnet/mug1 --frames 1200:1260 --out mug``.
 
-Writes DIR/scene/, DIR/hand.xml, DIR/stats.json and DIR/solutions/sol_000.npz, ... (see docs/synthesis.md).
+Writes DIR/scene/, DIR/hand.xml, DIR/stats.json and DIR/solutions/sol_000.npz, ... as solutions are found
+(docs/result_format.md); an interrupted run leaves them readable, with "complete": false in stats.json.
 """
 
 from __future__ import annotations
@@ -16,16 +17,27 @@ import sys
 import torch
 
 from ..errors import InputValueError
+from ._common import Progress, add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..synthesis.pipeline import DEFAULT_MAX_NODES
+
     p = sub.add_parser("synthesize", help="find diverse, physically plausible finger motions for a scene",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", help="a built-in scene name or a scene directory")
-    p.add_argument("--out", required=True, help="output directory (created; result files in it are replaced)")
+    p.add_argument("--out", required=True,
+                   help="output directory: new, empty, or an earlier result with --overwrite (checked before any "
+                        "work; solutions are written as they are found)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing result directory (kept whole until the new result is complete)")
     p.add_argument("--solutions", type=int, default=10, help="stop after this many solutions (default 10)")
-    p.add_argument("--time-budget", type=float, default=120.0,
-                   help="seconds for everything: preparation, search, reconstruction (default 120)")
+    p.add_argument("--max-nodes", type=int, default=DEFAULT_MAX_NODES, metavar="N",
+                   help=f"search budget in node tests (frames tested); with it a seed gives the same solutions on "
+                        f"any machine (default {DEFAULT_MAX_NODES}; 0: unbounded)")
+    p.add_argument("--time-budget", type=float, default=None, metavar="SEC",
+                   help="wall-clock cap for everything, seconds (default: none); a run stopped by it depends on the "
+                        "machine's speed and load")
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same run (default 0)")
     p.add_argument("--epsilon", type=float, default=10.0,
                    help="expected number of search nodes per path; windows are T/epsilon frames (default 10)")
@@ -39,12 +51,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--smooth", type=float, default=0.0, metavar="SEC",
                    help="low-pass filter the object and wrist trajectories first (Gaussian, standard deviation "
                         "in seconds; 0.05 suits 30 fps motion capture; default 0: as given)")
+    p.add_argument("--max-joint-speed", type=float, default=8.0, metavar="RAD_PER_S",
+                   help="joint-speed bound of the reconstructed motion (default 8 rad/s)")
+    p.add_argument("--keep-unsmoothed", action="store_true",
+                   help="also write paths whose reconstruction fails, as searched (flagged: reconstructed = false)")
     p.add_argument("--trees", type=int, default=16, help="search trees grown in parallel (default 16)")
     p.add_argument("--candidates", type=int, default=16, help="candidates tested per expansion (default 16)")
-    p.add_argument("--no-reconstruct", action="store_true", help="write the searched poses without smoothing")
+    p.add_argument("--no-reconstruct", action="store_true",
+                   help="write the searched poses without smoothing (flagged unsmoothed)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="device (default cpu)")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"], help="dtype (default float32)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_threads_argument(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar or progress lines")
     p.set_defaults(func=run)
 
 
@@ -58,57 +76,91 @@ def _frames(text: str, T: int) -> tuple[int, int]:
     return a, b
 
 
-def run(args) -> int:
-    from tqdm import tqdm
-
-    from ..scene import load_scene
-    from ..synthesis.output import write_result
-    from ..synthesis.node_test import NodeTestSettings
-    from ..synthesis.pipeline import synthesize
-
+def _check_args(args) -> None:
     if args.device == "cuda" and not torch.cuda.is_available():
         raise InputValueError("--device cuda: no CUDA device is available; use --device cpu")
     for name, value, low in (("--solutions", args.solutions, 1), ("--trees", args.trees, 1),
-                             ("--candidates", args.candidates, 1)):
+                             ("--candidates", args.candidates, 1), ("--max-nodes", args.max_nodes, 0)):
         if value < low:
             raise InputValueError(f"{name}: expected an integer >= {low}, got {value}")
-    if not args.time_budget > 0 or not args.epsilon > 0 or not args.slide_speed > 0:
-        raise InputValueError("--time-budget, --epsilon and --slide-speed must be positive")
+    for name, value in (("--time-budget", args.time_budget), ("--epsilon", args.epsilon),
+                        ("--slide-speed", args.slide_speed), ("--max-joint-speed", args.max_joint_speed)):
+        if value is not None and not value > 0:
+            raise InputValueError(f"{name}: expected a positive number, got {value:g}")
     if not args.smooth >= 0:
         raise InputValueError(f"--smooth: expected seconds >= 0, got {args.smooth}")
-    scene = load_scene(args.scene)        # before anything is written: a bad scene leaves no output behind
-    scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
-    if args.frames:
-        scene = scene.with_frames(*_frames(args.frames, scene.T))
-    bar = tqdm(total=round(args.time_budget), unit="s", desc="synthesize", disable=True if args.no_progress else None,
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{postfix}]")
+
+
+def run(args) -> int:
+    from ..scene import load_scene
+    from ..synthesis.node_test import NodeTestSettings
+    from ..synthesis.output import ResultWriter
+    from ..synthesis.pipeline import synthesize
+
+    _check_args(args)
+    threads = apply_threads(args.threads)
+    writer = ResultWriter(args.out, overwrite=args.overwrite)     # before any work: nothing is lost later
+    try:
+        scene = load_scene(args.scene)
+        scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
+        if args.frames:
+            scene = scene.with_frames(*_frames(args.frames, scene.T))
+    except BaseException:
+        writer.abandon()
+        raise
+    max_nodes = args.max_nodes or None
+    bar = Progress("synthesize", disable=args.no_progress)
 
     def progress(stage, info):
-        bar.n = min(int(info["elapsed"]), bar.total)
-        post = {"stage": stage}
         if stage == "search":
-            post.update(nodes=info["nodes_tested"], solutions=info["solutions"],
-                        left=f"{max(0.0, info['budget'] - info['elapsed']):.0f}s")
+            frac = info["nodes_tested"] / max_nodes if max_nodes else None
+            bar.update("search", f"{info['nodes_tested']}{f'/{max_nodes}' if max_nodes else ''} node tests, "
+                       f"{info['solutions']}/{args.solutions} solutions, {info['elapsed']:.0f} s", frac)
         elif stage == "reconstruct":
-            post.update(solution=f"{info['solution'] + 1}/{info['of']}")
-        bar.set_postfix(post, refresh=True)
+            bar.update("reconstruct", f"path {info['solution'] + 1}, {info['elapsed']:.0f} s")
+        else:
+            bar.update(stage, f"{info['elapsed']:.0f} s")
 
-    result = synthesize(scene, solutions=args.solutions, time_budget=args.time_budget, seed=args.seed,
-                        epsilon=args.epsilon, strategy=args.strategy, device=args.device,
-                        dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
-                        reconstruct=not args.no_reconstruct, progress=progress,
-                        node_settings=NodeTestSettings(slide_speed=args.slide_speed))
+    started = []
+
+    def on_solution(result, index):
+        if not started:
+            writer.start(result.problem, scene)
+            started.append(True)
+        writer.add(result, index)
+
+    try:
+        result = synthesize(scene, solutions=args.solutions, max_nodes=max_nodes, time_budget=args.time_budget,
+                            seed=args.seed, epsilon=args.epsilon, strategy=args.strategy, device=args.device,
+                            dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
+                            reconstruct=not args.no_reconstruct, max_joint_speed=args.max_joint_speed,
+                            keep_unsmoothed=args.keep_unsmoothed, progress=progress, on_solution=on_solution,
+                            node_settings=NodeTestSettings(slide_speed=args.slide_speed))
+    except KeyboardInterrupt:
+        bar.close()
+        where = writer.interrupted(None, scene.name)
+        print(f"torchhand: interrupted; {writer.written} solution(s) checkpointed in {where} (stats.json says "
+              f"\"complete\": false)", file=sys.stderr)
+        return 130
     bar.close()
-    write_result(result, scene, args.out, strategy=args.strategy, seed=args.seed)
+    if not started:
+        writer.start(result.problem, scene)
+    out = writer.finish(result, threads=threads)
     st = result.stats
-    n = len(result.solutions)
+    n = len(result.finals)
+    ex = result.excluded
+    unsmoothed = sum(not f.reconstructed for f in result.finals)
     print(f"{scene.name}: {n} solution(s) in {result.timings['total_s']:.1f} s; {st.nodes_tested} node tests "
-          f"({st.nodes_tested / max(result.timings['search_s'], 1e-9):.0f}/s), {st.dead_ends} dead ends "
-          f"(kinematic {st.rejections['kinematic']}, finger-finger {st.rejections['finger_finger']}, "
-          f"dynamic {st.rejections['dynamic']}); {result.excluded} path(s) excluded by the final check")
+          f"({st.nodes_tested / max(result.timings['search_s'], 1e-9):.0f}/s, stopped by {st.stopped_by}), "
+          f"{st.dead_ends} dead ends (kinematic {st.rejections['kinematic']}, finger-finger "
+          f"{st.rejections['finger_finger']}, dynamic {st.rejections['dynamic']}); {st.paths_found} path(s) found, "
+          f"not written: {ex.failed_check} failed the final check, {ex.unsmoothed} could not be smoothed, "
+          f"{ex.duplicate} duplicate(s)" + (f"; {unsmoothed} written unsmoothed" if unsmoothed else ""))
     if n == 0:
-        print(f"no feasible motion found within {args.time_budget:g} s: the furthest any path got was frame "
-              f"{st.deepest_frame} of {scene.T}. Try a longer --time-budget, another --seed, --slide-speed 0.05 "
+        budget = f"{max_nodes} node tests" if st.stopped_by == "max_nodes" else f"{args.time_budget:g} s" \
+            if st.stopped_by == "time_budget" else "the budget"
+        print(f"no feasible motion found within {budget}: the furthest any path got was frame "
+              f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, --slide-speed 0.05 "
               f"for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
               f"(torchhand inspect {args.scene}).", file=sys.stderr)
         worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
@@ -118,6 +170,5 @@ def run(args) -> int:
                           for t in worst if sum(st.rejections_by_frame[t]))
         if where:
             print(f"most rejections at {where} (stats.json: rejections_by_frame).", file=sys.stderr)
-    print(f"wrote {args.out}/scene/, {args.out}/hand.xml, {args.out}/stats.json, {n} solution(s) in "
-          f"{args.out}/solutions/")
+    print(f"wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {n} solution(s) in {out}/solutions/")
     return 0 if n else 1

@@ -18,7 +18,10 @@ deepest (hand point, surface point) pair of each colliding phalanx substituted i
 collision capsule contributes one-sided residuals max(0, r + margin - sd) at points along its axis to the same
 Levenberg–Marquardt problem, so penetration is resolved in one solve, for every finger link (the thumb's
 metacarpal and the proximal phalanges too: in this hand they have 3- and 2-DOF joints and the wrist tracks often
-bring them into the object), guided or free; the guiding point stays in the problem.
+bring them into the object), guided or free; the guiding point stays in the problem. The table is a collision constraint of the same kind
+(deviation: the paper does not test hand against table): with a table in the scene, the same capsule-axis points
+get one-sided residuals max(0, r + margin - (z - table)), and a link whose capsule reaches more than ``pen_tol``
+below the plane fails its finger (the palm: the hand) in the kinematic test (:func:`table_depth`).
 
 Contacts P: for every link, its surface sample with the smallest signed distance, when that distance is within
 ``contact_dist``; the contact point is that sample projected onto the object surface, the normal points into
@@ -38,10 +41,11 @@ from torchhand.kernels.penetration import capsule_interpenetration
 from torchhand.kernels.status import SolverStatus
 
 from ..collision import hand_object_penetration
+from .exact import capsule_depth as link_capsule_depth, mesh_normals
 from .problem import SynthesisProblem
 
 __all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points",
-           "contact_slots", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
+           "contact_slots", "table_depth", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
 
 CAUSE_NONE, CAUSE_KINEMATIC, CAUSE_FINGERS, CAUSE_DYNAMIC = 0, 1, 2, 3
 FORCE_ZERO, FORCE_INSIDE, FORCE_BOUNDARY = 0, 1, 2
@@ -78,7 +82,7 @@ class NodeTestSettings:
     nail_weight: float = 0.02      # metres per unit of nail misalignment
     reg_weight: float = 0.003      # pull toward the initial pose, metres per radian
     damping: float = 1e-7
-    pen_tol: float = 0.001         # deepest allowed penetration (SDF), metres
+    pen_tol: float = 0.001         # deepest allowed penetration of a link capsule (SDF), metres
     push_margin: float = 0.0003    # capsules are kept this far outside the surface, metres
     contact_dist: float = 0.0012   # a link's closest sample within this distance is a contact, metres
     finger_tol: float = 0.001      # finger-finger capsule overlap allowed, metres
@@ -102,6 +106,7 @@ class NodeTestSettings:
     #                                solves)
     cone_tol: float | None = 1e-4  # its relative tolerance (None: its per-dtype default); the search needs the
     #                                verdict, not six digits; the final check of the pipeline uses the default
+    exact: bool = False            # final-check mode: contact normals from the mesh (CPU, trimesh; :mod:`.exact`)
 
 
 @dataclass(frozen=True)
@@ -118,7 +123,7 @@ class FrameResult:
                  object, (N, K, 3) world, newtons (zero unless the dynamic test ran and converged); c_sliding:
                  contacts held since the previous frame whose hand point slides on the object, (N, K) bool
     env_force:   (N, E, 3) world, newtons
-    penetration: deepest penetration of any hand sample, (N,), metres (>= 0)
+    penetration: deepest penetration of any link capsule, (N,), metres (>= 0)
     guide_err:   distance of each guiding point from its target, (N, H, F), metres (0 where inactive)
     seed_*:      per finger, its most distal contact (Ye & Liu §4.2 seeds): seed_on (N, H, F) bool, seed_link
                  (N, H, F) long, seed_local (N, H, F, 3) link frame, seed_obj (N, H, F, 3) object frame,
@@ -226,6 +231,16 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     return mask, take(xw) * m3, _rotate(T_obj[:, None], take(n_in)) * m3, take(local) * m3
 
 
+def table_depth(problem: SynthesisProblem, hand, poses: torch.Tensor) -> torch.Tensor:
+    """How far each link's collision capsule reaches below the table plane, (N, L) metres (<= 0 above it), from
+    link poses (N, L, 4, 4). Zero everywhere without a table."""
+    if problem.table_height is None:
+        return poses.new_zeros(poses.shape[:2])
+    a = _transform(poses, hand.capsule_a)[..., 2]
+    b = _transform(poses, hand.capsule_b)[..., 2]
+    return problem.table_height - (torch.minimum(a, b) - hand.capsule_radius)
+
+
 def _finger_depth(hand, deepest_value: torch.Tensor) -> torch.Tensor:
     """Deepest penetration of each finger's links, (N, F) metres (>= 0), from a link's smallest signed distance
     ``deepest_value`` (N, L). A float scatter (CUDA has no scatter_reduce for bool)."""
@@ -271,8 +286,10 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     # rejected step does not hold back the others, as F independent solves would behave, in one batched solve.
     G = F + 1
     lf = hand.link_finger
+    table = problem.table_height
+    ax_group = torch.where(lf[ax_link] >= 0, lf[ax_link], F)
     res_group = torch.cat([torch.where(lf[slot_link] >= 0, lf[slot_link], F).repeat_interleave(3),
-                           torch.arange(F, device=q.device), torch.where(lf[ax_link] >= 0, lf[ax_link], F)])
+                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if table is not None else []))
     jf = hand.link_finger[hand.chain.joint_link]
     joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
     lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
@@ -296,8 +313,13 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         ra = (ax_r + s.push_margin - sd).clamp_min(0)                       # (N, A)
         on = (ra > 0).to(q.dtype)
         Ja = -(g_world.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * on[..., None]   # (N, A, D)
-        Jf = torch.cat([Jw.reshape(N, -1, D), Jn, Ja], 1)
-        rf = torch.cat([r.reshape(N, -1), rn, ra], 1)
+        Jf, rf = [Jw.reshape(N, -1, D), Jn, Ja], [r.reshape(N, -1), rn, ra]
+        if table is not None:
+            # the table: every finger capsule stays above the plane z = table (one-sided, as the object)
+            rt = (ax_r + s.push_margin - (xa[..., 2] - table)).clamp_min(0)         # (N, A)
+            Jf.append(-J[:, P + 2 * F:, 2] * (rt > 0).to(q.dtype)[..., None])
+            rf.append(rt)
+        Jf, rf = torch.cat(Jf, 1), torch.cat(rf, 1)
         cost = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, res_group, rf * rf)
         cost = cost.index_add_(1, joint_group, reg * (q - anchor) ** 2)   # (N, G)
         A = Jf.transpose(1, 2) @ Jf + reg * eye
@@ -498,15 +520,22 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         dtype, device = q.dtype, q.device
         lf = hand.link_finger                                                        # (L,)
         deep = pen.deepest_value                                                     # (N, L)
-        too_deep = deep < -s.pen_tol
         fail = err > s.ik_tol                                                        # (N, F)
-        fingers_deep = _finger_depth(hand, deep) > s.pen_tol
-        palm_deep = (too_deep & (lf < 0)).any(-1, keepdim=True)
+        # penetration by the links' capsules (the samples miss an edge pressing in between them, see .exact)
+        cdepth = link_capsule_depth(hand, poses, problem.sdf, problem.object_inv[t])  # (N, L)
+        fingers_deep = _finger_depth(hand, -cdepth) > s.pen_tol
+        palm_deep = ((cdepth > s.pen_tol) & (lf < 0)).any(-1, keepdim=True)
+        if problem.table_height is not None:
+            # below the table: a link's capsule reaching deeper than pen_tol under the plane fails its finger
+            # (or, for the palm, the hand)
+            under = table_depth(problem, hand, poses) > s.pen_tol                    # (N, L)
+            fingers_deep = fingers_deep | _finger_depth(hand, torch.where(under, -1.0, 0.0).to(deep.dtype)).bool()
+            palm_deep = palm_deep | (under & (lf < 0)).any(-1, keepdim=True)
         fail = fail | fingers_deep | palm_deep
         kin_fail.append(fail)
         qs.append(q)
         errs.append(err)
-        pens.append((-deep).clamp_min(0).amax(-1))
+        pens.append(cdepth.clamp_min(0).amax(-1))
         # finger-finger interpenetration (capsules)
         depth, _, _ = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_radius,
                                                hand.collision_pairs)
@@ -553,6 +582,9 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
     fingers_bad = worst > s.finger_tol
     pair = torch.where(fingers_bad[:, None], pairs[which], torch.full_like(pairs[which], -1))
     kin_bad = kin_fail.flatten(1).any(-1)
+
+    if s.exact and problem.mesh is not None:
+        c_normal = _mesh_normals(problem, t, c_point, c_normal, c_mask)
 
     # --- sliding from the motion where the previous frame is known (it overrides the guides' intent there) ---
     c_sliding = torch.zeros_like(c_mask)
@@ -605,6 +637,22 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
                        c_sliding=c_sliding,
                        c_local=c_local, c_point=c_point, c_normal=c_normal, c_force=c_force, env_force=env_force,
                        penetration=penetration, guide_err=guide_err, **seeds)
+
+
+def _mesh_normals(problem: SynthesisProblem, t: torch.Tensor, c_point: torch.Tensor, c_normal: torch.Tensor,
+                  c_mask: torch.Tensor) -> torch.Tensor:
+    """c_normal (N, K, 3) world with the active contacts' normals recomputed from the mesh (:mod:`.exact`)."""
+    idx = c_mask.nonzero()
+    if idx.shape[0] == 0:
+        return c_normal
+    n_, k_ = idx[:, 0], idx[:, 1]
+    T_inv = problem.object_inv[t[n_]]
+    p_obj = _transform(T_inv, c_point[n_, k_]).double().cpu().numpy()
+    g_obj = _rotate(T_inv, c_normal[n_, k_]).double().cpu().numpy()
+    exact = torch.as_tensor(mesh_normals(problem.mesh, p_obj, g_obj), dtype=c_normal.dtype, device=c_normal.device)
+    out = c_normal.clone()
+    out[n_, k_] = _rotate(problem.object_pose[t[n_]], exact)
+    return out
 
 
 def _seeds(problem, t, c_mask, c_local, c_point, c_normal, c_force, s: NodeTestSettings) -> dict:

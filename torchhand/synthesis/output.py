@@ -1,27 +1,27 @@
-"""Result directories of ``torchhand synthesize`` (the format other tools read; see ``docs/synthesis.md``).
+"""Result directories of ``torchhand synthesize``: the writer of the format in ``docs/result_format.md``.
 
-``DIR/scene/`` (the scene as exported), ``DIR/hand.xml`` (first hand, MJCF; ``hand_left.xml`` for the second of two),
-``DIR/stats.json`` (Ye & Liu Table 1 columns and more) and ``DIR/solutions/sol_000.npz``, ... with, per solution
-(T frames, D finger joints, K <= 32 contacts, E table contacts):
+:class:`ResultWriter` writes a result directory so that nothing is lost:
 
-    q (T, D) radians, joint_names (D,); root_pose (T, 4, 4); object_pose (T, 4, 4); fps ()
-    contact_mask (T, K), contact_link (T, K) (index into contact_link_name, -1 = padding), contact_link_name,
-    contact_point (T, K, 3) world, contact_normal (T, K, 3) into the object, contact_force (T, K, 3) hand on object,
-    contact_sliding (T, K); env_contact_mask (T, E), env_contact_point (T, E, 3), env_contact_force (T, E, 3);
-    guiding (T, 5); strategy; friction (); reconstructed ()
-
-With two hands ``q``, ``root_pose`` and ``guiding`` are the right hand's, ``q_right``/``q_left``,
-``root_pose_right``/``root_pose_left`` and ``guiding_right``/``guiding_left`` hold both, and the link-name table
-is prefixed ``right/`` and ``left/``. Every file is written to a temporary name in its folder and moved into place
-with ``os.replace``; nothing already in DIR is touched before the new content is complete.
+* the output is validated before any work (:meth:`ResultWriter.__init__`: an existing result directory is replaced
+  only with ``overwrite``; a directory that is not a result directory is never replaced; an unwritable place fails
+  at once);
+* solutions are checkpointed as they are accepted: each ``solutions/sol_XXX.npz`` and a ``stats.json`` with
+  ``"complete": false`` are written at once, so an interrupted run (Ctrl-C, ``kill -9``, a crash) leaves every
+  solution found so far readable;
+* every file is written to a temporary name in its folder and moved into place with ``os.replace``;
+* a new directory is written in place; a replaced one is built beside it (``DIR.partial``) and swapped in only
+  when complete, so the old result stays whole until then (an interrupted run leaves it untouched and its
+  checkpoints in ``DIR.partial``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import io
 import json
 import math
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -30,11 +30,12 @@ import torch
 
 from ..errors import InputValueError
 from ..hand.mjcf import hand_to_mjcf
-from ..scene import Scene
+from ..result import FORMAT_VERSION
 from .node_test import contact_slots
 from .pipeline import SynthesisResult, diversity
+from .problem import SynthesisProblem
 
-__all__ = ["MAX_CONTACTS", "write_result", "solution_arrays", "stats_dict"]
+__all__ = ["MAX_CONTACTS", "ResultWriter", "solution_arrays", "solution_view", "stats_dict", "write_result"]
 
 MAX_CONTACTS = 32
 """K, the most hand contacts written per frame."""
@@ -46,6 +47,8 @@ def _atomic_bytes(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -53,10 +56,14 @@ def _atomic_bytes(path: Path, data: bytes) -> None:
         raise
 
 
-def solution_arrays(result: SynthesisResult, index: int, strategy: str) -> dict:
-    """The npz arrays of solution ``index`` (see the module docstring)."""
+def _atomic_json(path: Path, obj: dict) -> None:
+    _atomic_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
+
+
+def solution_arrays(result: SynthesisResult, index: int) -> dict:
+    """The npz arrays of solution ``index`` (docs/result_format.md)."""
     p = result.problem
-    sol = result.solutions[index]
+    sol = result.finals[index]
     T = sol.q.shape[0]
     H = p.H
     hands = p.hands
@@ -78,6 +85,7 @@ def solution_arrays(result: SynthesisResult, index: int, strategy: str) -> dict:
     f = lambda x: x.detach().double().cpu().numpy()
     m3 = c_mask[..., None].double()
     out = {
+        "format_version": np.array(FORMAT_VERSION),
         "joint_names": np.array(hands[0].joint_names),
         "object_pose": f(p.object_pose), "fps": np.array(p.fps),
         "contact_mask": c_mask.numpy(), "contact_link": link.numpy(), "contact_link_name": np.array(names),
@@ -86,7 +94,7 @@ def solution_arrays(result: SynthesisResult, index: int, strategy: str) -> dict:
         "contact_sliding": torch.gather(sol.sliding.cpu(), 1, order).numpy() & c_mask.numpy(),
         "env_contact_mask": p.env.mask.cpu().numpy(), "env_contact_point": f(p.env.points),
         "env_contact_force": f(sol.env_force * p.env.mask[..., None].to(sol.env_force.dtype)),
-        "strategy": np.array(strategy), "friction": np.array(p.friction),
+        "strategy": np.array(result.settings.strategy), "friction": np.array(p.friction),
         "reconstructed": np.array(bool(sol.reconstructed)),
     }
     first = p.sides.index("right") if "right" in p.sides else 0
@@ -101,49 +109,169 @@ def solution_arrays(result: SynthesisResult, index: int, strategy: str) -> dict:
     return out
 
 
-def stats_dict(result: SynthesisResult, scene: Scene, *, strategy: str, seed: int) -> dict:
-    """stats.json: the paper's Table 1 columns for the run and more (see ``docs/synthesis.md``)."""
+def solution_view(result: SynthesisResult, index: int):
+    """Solution ``index`` as the result contract's :class:`torchhand.result.Solution` (NumPy), as a reader of the
+    written file would see it."""
+    from ..result import solution_from_arrays
+    return solution_from_arrays(solution_arrays(result, index), Path(f"sol_{index:03d}.npz"))
+
+
+def stats_dict(result: SynthesisResult, *, threads: int | None = None) -> dict:
+    """stats.json: the paper's Table 1 columns for the run and more (docs/result_format.md)."""
     st = result.stats
-    found = len(result.solutions) + result.excluded
+    found = st.paths_found
     search_s = result.timings.get("search_s", st.time_s)
+    scene = result.scene
+    ex = result.excluded
     return {
+        "format_version": FORMAT_VERSION, "complete": bool(result.complete),
         "scene": scene.name, "epsilon": result.settings.epsilon, "T": scene.T, "time_s": result.timings.get("total_s"),
-        "solutions": len(result.solutions), "paths_found": found, "excluded": result.excluded,
+        "solutions": len(result.finals), "paths_found": found, "excluded": ex.total,
+        "excluded_by_reason": {"failed_check": ex.failed_check, "unsmoothed": ex.unsmoothed,
+                               "duplicate": ex.duplicate},
         "dead_ends": st.dead_ends, "total_frames": st.nodes_tested, "success_frames": st.success_frames,
         "success_ratio": st.success_frames / st.nodes_tested if st.nodes_tested else 0.0,
         "solution_ratio": found / (found + st.dead_ends) if found + st.dead_ends else 0.0,
-        "nodes_tested": st.nodes_tested, "nodes_per_second": st.nodes_tested / search_s if search_s > 0 else 0.0,
-        "rejections": dict(st.rejections), "diversity_m": _finite(diversity(result.solutions)),
-        "reconstructed": [bool(s.reconstructed) for s in result.solutions],
-        "restarts": st.restarts, "deepest_frame": st.deepest_frame, "strategy": strategy, "seed": seed,
+        "nodes_tested": st.nodes_tested, "nodes_per_second": st.nodes_tested / search_s if search_s else 0.0,
+        "max_nodes": result.settings.max_nodes, "time_budget": result.settings.time_budget,
+        "stopped_by": st.stopped_by,
+        "rejections": dict(st.rejections), "diversity_m": _finite(diversity(result.finals)),
+        "reconstructed": [bool(s.reconstructed) for s in result.finals],
+        "unsmoothed": [i for i, s in enumerate(result.finals) if not s.reconstructed],
+        "max_joint_speed": result.max_joint_speed, "keep_unsmoothed": result.keep_unsmoothed,
+        "restarts": st.restarts, "deepest_frame": st.deepest_frame, "strategy": result.settings.strategy,
+        "seed": result.seed, "threads": threads if threads is not None else torch.get_num_threads(),
         "timings_s": result.timings, "trees": result.settings.trees, "candidates": result.settings.candidates,
         "slide_speed": result.node_settings.slide_speed,
         "rejections_by_frame": [list(r) for r in st.rejections_by_frame],
     }
 
 
-def _finite(x: float):
+def _finite(x):
     return None if x is None or not math.isfinite(x) else x
 
 
-def write_result(result: SynthesisResult, scene: Scene, out: str | os.PathLike, *, strategy: str, seed: int) -> Path:
-    """Write the result directory (see the module docstring). Returns its path."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    scene.export(out / "scene", overwrite=True)
-    p = result.problem
-    for h, hand in enumerate(p.hands):
-        name = "hand.xml" if h == 0 else f"hand_{p.sides[h]}.xml"
-        _atomic_bytes(out / name, hand_to_mjcf(hand.to("cpu", torch.float64)).encode())
-    sol_dir = out / "solutions"
-    sol_dir.mkdir(exist_ok=True)
-    for i in range(len(result.solutions)):
+_LOCK = ".torchhand.lock"
+
+
+def _is_result_dir(path: Path) -> bool:
+    return (path / "stats.json").is_file() or ((path / "scene").is_dir() and (path / "solutions").is_dir())
+
+
+def _locked_by_another(path: Path) -> bool:
+    """Whether another process holds the write lock of directory ``path``."""
+    lock = path / _LOCK
+    if not lock.exists():
+        return False
+    try:
+        with open(lock, "a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fh, fcntl.LOCK_UN)
+        return False
+    except OSError:
+        return True
+
+
+class ResultWriter:
+    """Writes one result directory, checkpointing as it goes (see the module docstring).
+
+    Construct it before any work: it validates ``out`` (InputValueError with one line naming the problem) and
+    claims the directory it writes into (``out`` itself when new, else ``out.partial``).
+    """
+
+    def __init__(self, out, *, overwrite: bool = False):
+        out = Path(out)
+        self.out = out
+        if out.exists() and not out.is_dir():
+            raise InputValueError(f"--out {out}: exists and is not a directory")
+        for d in (out, out.with_name(out.name + ".partial")):
+            if d.is_dir() and _locked_by_another(d):
+                raise InputValueError(f"--out {out}: another torchhand run is writing {d}; choose another directory")
+        replacing = out.is_dir() and any(p.name != _LOCK for p in out.iterdir())
+        if replacing and not _is_result_dir(out):
+            raise InputValueError(f"--out {out}: exists, is not empty and is not a result directory; choose a new "
+                                  f"directory (nothing was written)")
+        if replacing and not overwrite:
+            raise InputValueError(f"--out {out}: holds an earlier result; pass --overwrite to replace it (it is kept "
+                                  f"whole until the new result is complete) or choose another directory")
+        self.stage = out.with_name(out.name + ".partial") if replacing else out
+        try:
+            if self.stage != out and self.stage.exists():
+                shutil.rmtree(self.stage)          # checkpoints of an earlier interrupted replacement of out
+            self.stage.mkdir(parents=True, exist_ok=True)
+            self._lock = open(self.stage / _LOCK, "a")        # held until this process ends (kill -9 included)
+        except OSError as err:
+            raise InputValueError(f"--out {out}: cannot write there ({err.strerror or err})") from None
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise InputValueError(f"--out {out}: another torchhand run is writing {self.stage}; choose another "
+                                  f"directory") from None
+        self.created = not replacing
+        self.written = 0
+        self.problem: SynthesisProblem | None = None
+
+    def start(self, problem: SynthesisProblem, scene) -> None:
+        """Write the scene, the hand models and a ``stats.json`` saying the run is partial."""
+        self.problem = problem
+        scene.export(self.stage / "scene", overwrite=True)
+        for h, hand in enumerate(problem.hands):
+            name = "hand.xml" if h == 0 else f"hand_{problem.sides[h]}.xml"
+            _atomic_bytes(self.stage / name, hand_to_mjcf(hand.to("cpu", torch.float64)).encode())
+        (self.stage / "solutions").mkdir(exist_ok=True)
+        for old in (self.stage / "solutions").glob("sol_*.npz"):
+            old.unlink()                           # only in a directory this run claimed: new, empty or .partial
+        self._partial(scene.name, 0)
+
+    def _partial(self, scene_name: str, count: int) -> None:
+        _atomic_json(self.stage / "stats.json", {"format_version": FORMAT_VERSION, "complete": False,
+                                                 "scene": scene_name, "solutions": count})
+
+    def add(self, result: SynthesisResult, index: int) -> None:
+        """Checkpoint solution ``index`` of ``result`` (its npz, then the partial stats)."""
         buf = io.BytesIO()
-        np.savez_compressed(buf, **solution_arrays(result, i, strategy))
-        _atomic_bytes(sol_dir / f"sol_{i:03d}.npz", buf.getvalue())
-    for old in sol_dir.glob("sol_*.npz"):
-        if old.stem[4:].isdigit() and int(old.stem[4:]) >= len(result.solutions):
-            old.unlink()                      # solutions of an earlier run beyond this one's count
-    stats = stats_dict(result, scene, strategy=strategy, seed=seed)
-    _atomic_bytes(out / "stats.json", (json.dumps(stats, indent=2) + "\n").encode())
-    return out
+        np.savez_compressed(buf, **solution_arrays(result, index))
+        _atomic_bytes(self.stage / "solutions" / f"sol_{index:03d}.npz", buf.getvalue())
+        self.written = max(self.written, index + 1)
+        self._partial(result.scene.name, self.written)
+
+    def interrupted(self, result: SynthesisResult | None, scene_name: str) -> Path:
+        """Leave the checkpoints readable after an interruption: ``stats.json`` says partial. Returns the
+        directory that holds them."""
+        if self.problem is not None:
+            _atomic_json(self.stage / "stats.json", {"format_version": FORMAT_VERSION, "complete": False,
+                                                     "interrupted": True, "scene": scene_name,
+                                                     "solutions": self.written})
+        return self.stage
+
+    def abandon(self) -> None:
+        """Remove what this writer created when nothing was written yet (bad input found after validation)."""
+        if self.problem is None and self.stage.is_dir():
+            self._unlock()
+            if not any(self.stage.iterdir()):
+                self.stage.rmdir()
+
+    def _unlock(self) -> None:
+        if not self._lock.closed:
+            self._lock.close()
+            (self.stage / _LOCK).unlink(missing_ok=True)
+
+    def finish(self, result: SynthesisResult, *, threads: int | None = None) -> Path:
+        """Write the final ``stats.json`` and, when replacing, swap the new directory in. Returns ``out``."""
+        _atomic_json(self.stage / "stats.json", stats_dict(result, threads=threads))
+        self._unlock()
+        if self.stage != self.out:
+            old = self.out.with_name(self.out.name + f".old-{os.getpid()}")
+            os.replace(self.out, old)
+            os.replace(self.stage, self.out)
+            shutil.rmtree(old, ignore_errors=True)
+        return self.out
+
+
+def write_result(result: SynthesisResult, out, *, overwrite: bool = False, threads: int | None = None) -> Path:
+    """Write the whole result directory at once (see :class:`ResultWriter`). Returns its path."""
+    writer = ResultWriter(out, overwrite=overwrite)
+    writer.start(result.problem, result.scene)
+    for i in range(len(result.finals)):
+        writer.add(result, i)
+    return writer.finish(result, threads=threads)

@@ -2,17 +2,23 @@
 
 :func:`synthesize` runs the steps as a list of pure stages over typed state:
 
-1. :func:`~.problem.build_problem`: hands, SDF, required wrenches, contact patches;
+1. :func:`~.problem.build_problem`: hands, SDF, required wrenches, table, contact patches;
 2. :func:`~.initial.prune_patches`: the initial case's kinematic pruning;
-3. :func:`~.search.search`: the randomized depth-first search (time budget = what is left of ``time_budget``
-   after preparation, less a reserve for the last stage);
-4. :func:`finalize_solution` for every path found: spacetime reconstruction (§6) of each hand, then the contact and
-   dynamic test of the reconstructed poses with every contact's actual sliding velocity (a contact held since the
-   previous frame whose hand point moves on the object faster than ``NodeTestSettings.slide_speed`` is sliding and
-   must have its force on the cone boundary: "solutions that violate sliding friction for non-guiding contacts are
-   excluded", §6; the search applies the same rule, so its own poses pass it). A path whose reconstruction fails
-   this test gets its searched poses blended back in around the failing frames, then falls back to its searched
-   poses; a path that fails all three is excluded and counted.
+3. :func:`~.search.search`: the randomized depth-first search, bounded by a node budget (``max_nodes`` node
+   tests: the same run on any machine) and optionally capped by wall-clock time;
+4. :func:`finalize_solution` for every path as soon as the search finds it (its time is inside the budget, and the
+   caller can checkpoint it at once): spacetime reconstruction (§6) of each hand with the table and a joint-speed
+   bound as constraints, then the contact and dynamic test of the reconstructed poses with every contact's actual
+   sliding velocity (a contact held since the previous frame whose hand point moves on the object faster than
+   ``NodeTestSettings.slide_speed`` is sliding and must have its force on the cone boundary: "solutions that
+   violate sliding friction for non-guiding contacts are excluded", §6; the search applies the same rule, so its
+   own poses pass it). A path whose reconstruction fails this test gets its searched poses blended back in around
+   the failing frames (kept only within the speed bound). A path that cannot be smoothed is not written (unless
+   ``keep_unsmoothed``, which writes its searched poses flagged ``reconstructed = False``), nor is one closer than
+   ``min_difference`` (mean joint angle) to an earlier solution; neither counts toward ``solutions``.
+
+Deviation: the paper smooths after the search; here every path is finished as it is found, which gives the same
+motions (each path is reconstructed alone) and lets rejected paths not count.
 
 Conventions: world frame, metres, newtons, radians; forces are those of the hand on the object.
 """
@@ -26,7 +32,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from ..scene import Scene
+from ..errors import InputValueError
+from ..scene import Scene, load_scene
 from .initial import prune_patches
 from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
 from .problem import SynthesisProblem, build_problem
@@ -61,17 +68,60 @@ class FinalSolution:
     index: int
 
 
+DEFAULT_MAX_NODES = 60000
+"""The default node budget of :func:`synthesize` (node tests, i.e. frames tested): enough for ten solutions of
+every built-in scene on most seeds (BENCHMARKS.md), the same answer on any machine."""
+
+
+@dataclass(frozen=True)
+class Exclusions:
+    """Paths the search found that were not written, by reason."""
+
+    failed_check: int = 0      # no motion of the path (smoothed, blended, searched) passed the final check
+    unsmoothed: int = 0        # passed only as searched (not smoothed) and ``keep_unsmoothed`` was off
+    duplicate: int = 0         # closer than ``min_difference`` (mean joint angle) to an earlier solution
+
+    @property
+    def total(self) -> int:
+        return self.failed_check + self.unsmoothed + self.duplicate
+
+
 @dataclass
 class SynthesisResult:
-    """Everything :func:`synthesize` produced: the problem, the finished solutions and the run's figures."""
+    """Everything :func:`synthesize` produced: the problem, the finished solutions and the run's figures.
+
+    finals: the written motions as :class:`FinalSolution` (torch, (T, H, D) joint angles); ``solutions`` gives them
+    as :class:`torchhand.result.Solution` (NumPy, the result contract: ``solutions[i].q`` (T, D) for one hand,
+    ``solutions[i].hand("left").q`` for either). ``save(dir)`` writes the result directory.
+    """
 
     problem: SynthesisProblem
-    solutions: list
+    scene: Scene
+    finals: list
     stats: SearchStats
     settings: SearchSettings
-    excluded: int = 0
+    excluded: Exclusions = Exclusions()
     timings: dict = field(default_factory=dict)
     node_settings: NodeTestSettings = NodeTestSettings()
+    seed: int = 0
+    max_joint_speed: float = 8.0
+    keep_unsmoothed: bool = False
+    complete: bool = True
+
+    @property
+    def solutions(self) -> tuple:
+        from .output import solution_view
+        return tuple(solution_view(self, i) for i in range(len(self.finals)))
+
+    def save(self, directory, *, overwrite: bool = False):
+        """Write the result directory (docs/result_format.md) atomically; an existing result directory is
+        replaced only with ``overwrite``. Returns its path."""
+        from .output import ResultWriter
+        writer = ResultWriter(directory, overwrite=overwrite)
+        writer.start(self.problem, self.scene)
+        for i in range(len(self.finals)):
+            writer.add(self, i)
+        return writer.finish(self)
 
 
 def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
@@ -90,7 +140,8 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
-    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None)  # full accuracy
+    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None,
+                             exact=True)                                 # full accuracy, exact normals
     first = evaluate_poses(problem, t, q, settings=ns, dynamics=False)     # contacts only
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
@@ -114,15 +165,24 @@ def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor,
     return (1 - w) * q_smooth + w * q_search
 
 
+def max_joint_speed(q: torch.Tensor, fps: float) -> float:
+    """Largest |dq/dt| of a motion q (T, ...) radians, by forward differences, rad/s (0 for one frame)."""
+    return float((q[1:] - q[:-1]).abs().amax()) * fps if q.shape[0] > 1 else 0.0
+
+
 def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
-                      reconstruct: bool = True) -> FinalSolution | None:
-    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn: the smoothed motion;
-    the smoothed motion with the searched poses blended back in around the frames that failed; the searched
-    poses. None if none passes the contact and dynamic test in every frame."""
+                      reconstruct: bool = True, joint_speed: float = 8.0,
+                      keep_unsmoothed: bool = False) -> tuple[FinalSolution | None, str]:
+    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn: the smoothed motion
+    (table and the joint-speed bound ``joint_speed`` rad/s are constraints of the reconstruction); the smoothed
+    motion with the searched poses blended back in around the frames that failed, if it keeps the speed bound;
+    with ``keep_unsmoothed`` (or ``reconstruct`` False) the searched poses. Returns (the first that passes the
+    contact and dynamic test in every frame, "ok") or (None, "failed_check" | "unsmoothed")."""
     def attempt(q):
         res = _evaluate_motion(problem, q, ns)
         return res, res.c_sliding
 
+    speed_ok = lambda q: max_joint_speed(q, problem.fps) <= joint_speed * (1 + 1e-3)
     candidates = []
     if reconstruct:
         qs = []
@@ -137,41 +197,77 @@ def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, n
             contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
             rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
                                      object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
-                                     max_inner=8, step_tol=1e-3)
+                                     max_inner=8, step_tol=1e-3, table_height=problem.table_height,
+                                     max_joint_step=joint_speed / problem.fps, finger_tol=0.5 * ns.finger_tol)
             qs.append(rec.q.to(sol.q.dtype))
         q_rec = torch.stack(qs, 1)
-        res, sliding = attempt(q_rec)
-        candidates.append((q_rec, res, sliding, True))
-        if not bool(res.feasible.all()):
-            q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
-            res, sliding = attempt(q_mix)
-            candidates.append((q_mix, res, sliding, True))
-    if not candidates or not bool(candidates[-1][1].feasible.all()):
+        if speed_ok(q_rec):
+            res, sliding = attempt(q_rec)
+            candidates.append((q_rec, res, sliding, True))
+            if not bool(res.feasible.all()):
+                q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
+                if speed_ok(q_mix):
+                    res, sliding = attempt(q_mix)
+                    candidates.append((q_mix, res, sliding, True))
+    smoothed_ok = bool(candidates) and bool(candidates[-1][1].feasible.all())
+    if not smoothed_ok:
+        if reconstruct and not keep_unsmoothed:
+            return None, "unsmoothed" if bool(attempt(sol.q)[0].feasible.all()) else "failed_check"
         res, sliding = attempt(sol.q)
         candidates.append((sol.q, res, sliding, False))
     q, res, sliding, smoothed = candidates[-1]
     if not bool(res.feasible.all()):
-        return None
+        return None, "failed_check"
     return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point, c_normal=res.c_normal,
                          c_force=res.c_force, env_force=res.env_force, guiding=sol.guiding, guide_obj=sol.guide_obj,
-                         sliding=sliding, reconstructed=smoothed, index=index)
+                         sliding=sliding, reconstructed=smoothed, index=index), "ok"
 
 
-def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0, seed: int = 0,
-               epsilon: float = 10.0, strategy: str = "mixed", device="cpu", dtype=torch.float32,
-               trees: int = 16, candidates: int = 16, reconstruct: bool = True,
-               node_settings: NodeTestSettings = NodeTestSettings(), progress=None) -> SynthesisResult:
-    """Find up to ``solutions`` finger motions for ``scene`` within ``time_budget`` seconds (everything included).
+def _duplicate(q: torch.Tensor, earlier: list, min_difference: float) -> bool:
+    """Whether q (T, H, D) is within ``min_difference`` radians of mean absolute joint difference of any earlier
+    solution's q."""
+    return any(float((q - f.q).abs().mean()) < min_difference for f in earlier)
 
-    progress: optional callable(stage: str, info: dict) called at each stage and after every search round
-    (info has nodes_tested, solutions, dead_ends, elapsed, budget).
+
+def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MAX_NODES,
+               time_budget: float | None = None, seed: int = 0, epsilon: float = 10.0, strategy: str = "mixed",
+               device="cpu", dtype=torch.float32, trees: int = 16, candidates: int = 16, reconstruct: bool = True,
+               max_joint_speed: float = 8.0, keep_unsmoothed: bool = False,
+               min_difference: float = math.radians(2.0),
+               node_settings: NodeTestSettings = NodeTestSettings(), progress=None,
+               on_solution=None) -> SynthesisResult:
+    """Find up to ``solutions`` finger motions for ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene
+    name or a scene directory).
+
+    Work is bounded by ``max_nodes`` node tests (frames tested by the search; None: unbounded): with it, a seed gives
+    the same solutions on any machine, whatever its speed or load (same device, dtype and thread count).
+    ``time_budget`` (seconds, everything included; None: none) is a wall-clock cap on top. Every path is
+    reconstructed and checked as soon as the search finds it (so its time is inside the budget), and only
+    accepted paths count toward ``solutions``: reconstructed within the joint-speed bound ``max_joint_speed``
+    (rad/s), passing the final check, and differing from every earlier solution by ``min_difference`` radians of
+    mean joint angle. ``keep_unsmoothed`` also accepts paths that pass only as searched (flagged ``reconstructed``
+    False); ``reconstruct`` False writes searched poses only.
+
+    progress: optional callable(stage: str, info: dict) called at each stage and after every search round (info
+    has elapsed, and in the search nodes_tested, max_nodes, solutions, dead_ends). on_solution: optional
+    callable(result, index) called with the (growing) result as each solution is accepted (checkpointing).
     """
+    for name, value in (("solutions", solutions), ("trees", trees), ("candidates", candidates)):
+        if not isinstance(value, int) or value < 1:
+            raise InputValueError(f"{name}: expected an integer >= 1, got {value!r}")
+    if max_nodes is not None and (not isinstance(max_nodes, int) or max_nodes < 1):
+        raise InputValueError(f"max_nodes: expected an integer >= 1 or None, got {max_nodes!r}")
+    for name, value in (("time_budget", time_budget), ("max_joint_speed", max_joint_speed), ("epsilon", epsilon)):
+        if value is not None and not value > 0:
+            raise InputValueError(f"{name}: expected a positive number, got {value!r}")
     t_start = time.perf_counter()
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
     gen = torch.Generator().manual_seed(int(seed))
 
     def report(stage, **info):
         if progress is not None:
-            progress(stage, dict(info, elapsed=time.perf_counter() - t_start, budget=time_budget))
+            progress(stage, dict(info, elapsed=time.perf_counter() - t_start))
 
     report("prepare")
     problem = build_problem(scene, gen, device=device, dtype=dtype)
@@ -179,32 +275,49 @@ def synthesize(scene: Scene, *, solutions: int = 10, time_budget: float = 120.0,
     init = prune_patches(problem, gen, settings=node_settings)
     t_prep = time.perf_counter() - t_start
     settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
-                              solutions=solutions, time_budget=max(1.0, time_budget - t_prep))
+                              solutions=solutions, max_nodes=max_nodes,
+                              time_budget=None if time_budget is None else max(0.0, time_budget - t_prep))
+    result = SynthesisResult(problem=problem, scene=scene, finals=[], stats=SearchStats(), settings=settings,
+                             node_settings=node_settings, seed=int(seed), max_joint_speed=float(max_joint_speed),
+                             keep_unsmoothed=bool(keep_unsmoothed or not reconstruct), complete=False)
+    excluded = {"failed_check": 0, "unsmoothed": 0, "duplicate": 0}
+    t_final = [0.0]
+
+    searched = []                           # the searched poses of the accepted paths
+
+    def accept(path: Solution) -> bool:
+        t0 = time.perf_counter()
+        if _duplicate(path.q, searched, min_difference):
+            excluded["duplicate"] += 1      # as searched already: no need to reconstruct it
+            return False
+        report("reconstruct", solution=len(result.finals))
+        fin, reason = finalize_solution(problem, path, len(result.finals), ns=node_settings, reconstruct=reconstruct,
+                                        joint_speed=max_joint_speed, keep_unsmoothed=keep_unsmoothed)
+        if fin is not None and _duplicate(fin.q, result.finals, min_difference):
+            fin, reason = None, "duplicate"
+        t_final[0] += time.perf_counter() - t0
+        if fin is None:
+            excluded[reason] += 1
+            return False
+        result.finals.append(fin)
+        searched.append(path)
+        if on_solution is not None:
+            on_solution(result, len(result.finals) - 1)
+        return True
 
     def on_round(s):
-        report("search", nodes_tested=s.stats.nodes_tested, solutions=len(s.solutions),
+        report("search", nodes_tested=s.stats.nodes_tested, max_nodes=max_nodes, solutions=len(s.solutions),
                dead_ends=s.stats.dead_ends)
 
-    # every path found takes about 2 s of reconstruction and checking (T ~ 70 frames, one hand) off the budget
-    paths, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
-                          reserve_per_solution=0.03 * problem.T * problem.H if reconstruct else 0.0)
-    t_search = time.perf_counter() - t_start - t_prep
-    paths = paths[:solutions]                 # the last round may have found more than were asked for
-    finals, excluded = [], 0
-    for i, path in enumerate(paths):
-        report("reconstruct", solution=i, of=len(paths))
-        # past the budget, the remaining paths are checked as searched (no smoothing)
-        smooth = reconstruct and time.perf_counter() - t_start < time_budget
-        fin = finalize_solution(problem, path, len(finals), ns=node_settings, reconstruct=smooth)
-        if fin is None:
-            excluded += 1
-        else:
-            finals.append(fin)
+    _, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
+                      accept=accept)
     t_total = time.perf_counter() - t_start
-    return SynthesisResult(problem=problem, solutions=finals, stats=stats, settings=settings, excluded=excluded,
-                           timings={"prepare_s": t_prep, "search_s": t_search,
-                                    "reconstruct_s": t_total - t_prep - t_search, "total_s": t_total},
-                           node_settings=node_settings)
+    result.stats = stats
+    result.excluded = Exclusions(**excluded)
+    result.timings = {"prepare_s": t_prep, "search_s": t_total - t_prep - t_final[0], "finalize_s": t_final[0],
+                      "total_s": t_total}
+    result.complete = True
+    return result
 
 
 def diversity(solutions: list) -> float:

@@ -50,6 +50,8 @@ class SynthesisProblem:
     env_friction: object-table friction coefficient; friction: hand-object friction coefficient
     mass:         object mass, kg; weight: m |g|, newtons (the force scale of the checks)
     fps:          frames per second
+    table_height: z of the table plane, world, metres; None without a table (the hands must stay above it)
+    mesh:         the object's trimesh.Trimesh, object frame (exact normals in the final check), or None
     """
 
     hands: tuple
@@ -69,6 +71,8 @@ class SynthesisProblem:
     mass: float
     weight: float
     fps: float
+    table_height: float | None = None
+    mesh: object = None
 
     @property
     def T(self) -> int:
@@ -224,4 +228,5 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
         env=EnvContacts(env.points.to(device, dtype), env.mask.to(device), env.sliding_velocity.to(device, dtype),
                         env.support_index.to(device), env.normal.to(device, dtype)),
         env_friction=float(scene.environment.friction), friction=float(scene.friction), mass=float(obj.mass),
-        weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps))
+        weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps),
+        table_height=float(scene.environment.table_height) if scene.environment.table else None, mesh=obj.mesh)

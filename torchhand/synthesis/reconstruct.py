@@ -19,8 +19,11 @@ Method
     * Joint limits are bounds handled by a primal active set: a joint that leaves its range is clamped and held at
       the bound until the model gradient points back inside.
     * Long motions are solved in overlapping windows of ``segment`` frames (see :func:`_smooth_sequence`).
-    * Collisions (§6, last paragraph, with §4.3's deepest-point rule): after smoothing, the deepest sample of every
-      penetrating phalanx becomes a constraint of the next round; rounds alternate until no penetration is left.
+    * Collisions (§6, last paragraph, with §4.3's deepest-point rule): after smoothing, the deepest capsule-axis point
+      of every penetrating phalanx becomes a constraint of the next round, and so does the lower end of every capsule
+      that reaches below the table (:mod:`.reconstruct_bounds`); rounds alternate until no penetration is left.
+    * Joint speed: with ``max_joint_step`` every finger joint's step between frames is bounded, a linear inequality
+      in the same augmented Lagrangian (:mod:`.reconstruct_bounds`).
 
 Deviations from the paper
     * Weak priors: a non-free finger is pulled to its searched pose with ``search_weight`` and a free one to the
@@ -50,11 +53,14 @@ from dataclasses import dataclass
 import torch
 
 from .._tree import tree_map, tree_to
-from ..collision import hand_object_penetration
+from ..collision import rigid_inverse
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputTypeError, InputValueError, ShapeError
 from ..hand.model import HandModel
 from ..sdf import SDFGrid
+from .exact import capsule_penetration
+from .reconstruct_bounds import (SPEED_MARGIN, finger_pair_parts, speed_penalty, speed_terms, speed_update,
+                                 speed_values, table_constraint_parts, table_depth)
 
 __all__ = ["ContactTrack", "ReconstructStatus", "ReconstructResult", "reconstruct_motion"]
 
@@ -168,7 +174,7 @@ class ReconstructResult:
 
     q:             smoothed joint angles, (T, D), radians
     contact_error: largest distance of a kept contact point from its target, (T,), metres; 0 where none
-    penetration:   deepest hand-object penetration of any hand surface sample, (T,), metres, >= 0; 0 without sdf
+    penetration:   deepest hand-object (or hand-table) penetration of any link capsule, (T,), metres, >= 0
     smoothness:    E1 + bend_weight * E2 of ``q`` (Eqs. 10-11), (T,), radians^2; E1 is 0 at the first and last frame
     frame_status:  :class:`ReconstructStatus` value of every frame, (T,), int8
     iterations:    smoothing/collision rounds used (1 .. max_outer)
@@ -245,6 +251,8 @@ class _Problem:
     step_tol: float             # radians
     frame_links: torch.Tensor   # (4L,) long: every link four times (origin and three axes)
     frame_points: torch.Tensor  # (4L, 3) metres
+    joint_step: float | None = None   # bound on |q[t+1] - q[t]| per joint, radians (reconstruct_bounds)
+    rho_speed: float = 1e4            # augmented-Lagrangian penalty of the speed bound, 1/rad^2 relative to E1
 
 
 def _finger_layout(hand: HandModel) -> _Layout:
@@ -305,6 +313,9 @@ def reconstruct_motion(
     contact_tol: float = 1e-3,
     segment: int = 60,
     check: bool = False,
+    table_height: float | None = None,
+    max_joint_step: float | None = None,
+    finger_tol: float | None = None,
 ) -> ReconstructResult:
     """Smooth a searched finger-motion path while keeping its contacts and removing penetration (Eqs. 9-11).
 
@@ -332,6 +343,11 @@ def reconstruct_motion(
     contact_tol: allowed distance of a kept contact from its target, metres
     segment:     window length in frames (>= 8); consecutive windows overlap by ``segment // 3 + 2`` frames
     check:       also check inputs for NaN/inf and root/object poses for rigidity (forces a host sync)
+    table_height: z of a table plane, world, metres: finger capsules are kept above it (collision rounds)
+    max_joint_step: bound on |q[t+1] - q[t]| of every finger joint, radians (a joint-speed bound times the frame
+                 time), a constraint of every window (:mod:`.reconstruct_bounds`)
+    finger_tol:  with it, capsules of different fingers (``hand.collision_pairs``) that overlap by more than this
+                 are pushed apart in the collision rounds, metres
     returns:     :class:`ReconstructResult`
 
     Raises ShapeError / InputTypeError / InputValueError naming the argument on bad input.
@@ -357,7 +373,8 @@ def reconstruct_motion(
     problem = _Problem(hand=hand, layout=layout, root=root, prior_target=prior_target, prior_weight=prior_weight,
                        bend_weight=float(bend_weight), rho=float(contact_weight), contact_tol=float(contact_tol),
                        penetration_tol=float(penetration_tol), max_inner=max_inner, step_tol=float(step_tol),
-                       frame_links=torch.arange(L, device=dev).repeat_interleave(4), frame_points=eye.repeat(L, 1))
+                       frame_links=torch.arange(L, device=dev).repeat_interleave(4), frame_points=eye.repeat(L, 1),
+                       joint_step=None if max_joint_step is None else SPEED_MARGIN * float(max_joint_step))
 
     link_safe = contacts.link.clamp(0, L - 1)
     finger = hand.link_finger[link_safe]
@@ -368,25 +385,42 @@ def reconstruct_motion(
     lam_eq = q.new_zeros(T, contacts.slots, 3, dtype=_SOLVE_DTYPE)
     ineq = _collision_constraints(hand, layout, None, 0.0, q)  # none yet
     lam_in = q.new_zeros(T, 0, dtype=_SOLVE_DTYPE)
-    # Collision points are pushed this far past the surface, so that the next round's deepest sample is outside.
+    # Collision points are pushed this far past the surface, so that the next round finds the capsule outside.
     margin = 0.5 * penetration_tol
 
     penetration = q.new_zeros(T)
+    object_inv = None if object_pose is None else rigid_inverse(object_pose)
     rounds = 0
     for rounds in range(1, max_outer + 1):
         if F > 0:
             q, lam_eq, lam_in = _smooth_sequence(problem, q, eq, ineq, lam_eq, lam_in, segment)
-        if sdf is None:
+        if sdf is None and table_height is None and finger_tol is None:
             break
-        pen = hand_object_penetration(hand, hand.forward_kinematics(q, root), sdf, object_pose)
-        penetration = (-pen.sd.amin(dim=1)).clamp_min(0) if pen.sd.shape[1] else q.new_zeros(T)
-        if rounds == max_outer or not bool((penetration > penetration_tol).any()):
+        poses = hand.forward_kinematics(q, root)
+        new = []
+        penetration = q.new_zeros(T)
+        if sdf is not None:
+            pen = capsule_penetration(hand, poses, sdf, object_pose, object_inv)
+            penetration = pen[0].amax(1).clamp_min(0)
+            new.append(_collision_constraints(hand, layout, pen, margin, q))
+        if table_height is not None:
+            below = table_depth(hand, poses, table_height)[:, layout.movable]
+            penetration = torch.maximum(penetration, below.amax(1).clamp_min(0) if below.shape[1] else penetration)
+            new.append(_table_constraints(hand, layout, poses, table_height, margin))
+        over = False
+        if finger_tol is not None:
+            overlap, link, local, target, normal, mask = finger_pair_parts(hand, poses, layout.movable, margin)
+            over = bool((overlap > finger_tol).any())
+            new.append(_Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=local, target=target,
+                                    mask=mask & (overlap > 0.5 * finger_tol).repeat(1, 2), normal=normal))
+        if rounds == max_outer or not (over or bool((penetration > penetration_tol).any())):
             break
-        new = _collision_constraints(hand, layout, pen, margin, q)
-        if not bool(new.mask.any()):
+        new = [c for c in new if bool(c.mask.any())]
+        if not new:
             break  # what penetrates is the palm or a palm-level link: the root pose places it
-        ineq = ineq.cat(new)
-        lam_in = torch.cat([lam_in, lam_in.new_zeros(T, new.mask.shape[1])], dim=1)
+        for c in new:
+            ineq = ineq.cat(c)
+            lam_in = torch.cat([lam_in, lam_in.new_zeros(T, c.mask.shape[1])], dim=1)
 
     return _result(problem, q, contacts, penetration, rounds)
 
@@ -536,6 +570,7 @@ def _solve_window(p: _Problem, sl: slice, x: torch.Tensor, fixed: int, eq: _Cons
     xl = x[:, lay.joints].permute(1, 0, 2).to(wdt) * lay.valid[:, None, :]  # (F, S, n), finger-local
     at_bound = torch.zeros_like(held)
     bound_value = torch.zeros_like(xl)
+    lam_v = xl.new_zeros(F, max(S - 1, 0), n, 2) if p.joint_step is not None else None
     step = math.inf
     for it in range(p.max_inner):
         (pos_eq, J_eq), (pos_in, J_in) = _linearise(p, x, w.root, (eq, ineq))
@@ -545,15 +580,21 @@ def _solve_window(p: _Problem, sl: slice, x: torch.Tensor, fixed: int, eq: _Cons
             # take one augmented-Lagrangian multiplier step and go on.
             worst_eq = float(c_eq.norm(dim=-1)[w.m_eq].max()) if bool(w.m_eq.any()) else 0.0
             worst_in = float((-g_in)[w.m_in].max().clamp_min(0)) if bool(w.m_in.any()) else 0.0
-            if worst_eq <= _RESIDUAL_FRACTION * p.contact_tol and worst_in <= _RESIDUAL_FRACTION * p.penetration_tol:
+            worst_v = 0.0
+            if lam_v is not None:
+                lam_v_next, worst_v = speed_update(xl, lay.valid, p.joint_step, lam_v, p.rho_speed)
+            if worst_eq <= _RESIDUAL_FRACTION * p.contact_tol and worst_in <= _RESIDUAL_FRACTION * p.penetration_tol \
+                    and worst_v <= 1e-4:
                 break
             lam_eq = torch.where(w.m_eq[..., None], lam_eq + p.rho * c_eq, lam_eq)
             lam_in = torch.where(w.m_in, (lam_in - p.rho * g_in).clamp_min(0), lam_in)
+            if lam_v is not None:
+                lam_v = lam_v_next
         frozen = w.held | at_bound
         values = torch.where(at_bound, bound_value, xl)
-        sol, grad = _gauss_newton_step(p, w, xl, frozen, values, J_eq, c_eq, lam_eq, J_in, g_in, lam_in)
+        sol, grad = _gauss_newton_step(p, w, xl, frozen, values, J_eq, c_eq, lam_eq, J_in, g_in, lam_in, lam_v)
         d, at_bound, bound_value = _limit_step(w, xl, sol, grad, at_bound, bound_value)
-        alpha = _backtrack(p, w, x, xl, d, (c_eq, g_in), lam_eq, lam_in)
+        alpha = _backtrack(p, w, x, xl, d, (c_eq, g_in), lam_eq, lam_in, lam_v)
         new = xl + alpha * d
         step = float((new - xl).abs().max()) if new.numel() else 0.0
         xl = new
@@ -561,7 +602,8 @@ def _solve_window(p: _Problem, sl: slice, x: torch.Tensor, fixed: int, eq: _Cons
     return x, lam_eq, lam_in
 
 
-def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, lam_eq, J_in, g_in, lam_in):
+def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, lam_eq, J_in, g_in, lam_in,
+                       lam_v=None):
     """Minimiser of the window's linearised problem with ``frozen`` entries held at ``values`` (F, S, n), and the
     model gradient there (F, S, n).
 
@@ -577,17 +619,29 @@ def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, 
     normal = w.ineq.normal.to(_SOLVE_DTYPE)
     rows_in = (normal[..., None] * J_in).sum(2)  # (S, C, n)
     active = w.m_in & (lam_in / p.rho - g_in > 0)
+    speed = lam_v is not None
+    if speed:
+        valid = p.layout.valid
+        active_v = lam_v / p.rho_speed - speed_values(xl, p.joint_step) > 0
     for _ in range(_ACTIVE_SET_ROUNDS):
         blk_in, rhs_in = _constraint_terms(p, xl, w.ineq, J_in, g_in, lam_in, active, normal)
         H = H_eq.clone()
         _add_block_diagonal(H, blk_in)
         b = b_eq + rhs_in.reshape(F, S * n)
+        if speed:
+            H_v, b_v = speed_terms(xl, valid, p.joint_step, lam_v, p.rho_speed, active_v)
+            H, b = H + H_v, b + b_v
         sol = _solve_frozen(H, b, frozen.reshape(F, S * n), values.reshape(F, S * n))
-        if not bool(w.m_in.any()):
+        if not bool(w.m_in.any()) and not speed:
             break
         moved = (sol.view(F, S, n) - xl).permute(1, 0, 2).gather(1, w.ineq.finger[..., None].expand(-1, -1, n))
         grown = active | (w.m_in & (lam_in / p.rho - (g_in + (rows_in * moved).sum(-1)) > 0))
-        if bool((grown == active).all()):
+        same = bool((grown == active).all())
+        if speed:
+            grown_v = active_v | (lam_v / p.rho_speed - speed_values(sol.view(F, S, n), p.joint_step) > 0)
+            same = same and bool((grown_v == active_v).all())
+            active_v = grown_v
+        if same:
             break
         active = grown
     grad = (H @ sol.unsqueeze(-1)).squeeze(-1) - b
@@ -607,17 +661,17 @@ def _limit_step(w: _Window, xl, sol, grad, at_bound, bound_value):
     return d, at_bound, bound_value
 
 
-def _backtrack(p: _Problem, w: _Window, x, xl, d, residuals, lam_eq, lam_in) -> torch.Tensor:
+def _backtrack(p: _Problem, w: _Window, x, xl, d, residuals, lam_eq, lam_in, lam_v=None) -> torch.Tensor:
     """Step length per finger, (F, 1, 1): halved until the merit does not rise (0 if it always does). The
     Gauss–Newton model ignores the constraints' curvature, which dominates the weak priors in the directions the
     contacts leave free, so full steps can overshoot."""
-    merit0 = _merit(p, w, xl, *residuals, lam_eq, lam_in)
+    merit0 = _merit(p, w, xl, *residuals, lam_eq, lam_in, lam_v)
     alpha = xl.new_ones(xl.shape[0], 1, 1)
     for _ in range(_BACKTRACK_STEPS):
         trial = xl + alpha * d
         poses = p.hand.forward_kinematics(_to_global(x, p.layout, trial), w.root)
         merit1 = _merit(p, w, trial, *_residuals(w.eq, w.ineq, _positions(poses, w.eq), _positions(poses, w.ineq)),
-                        lam_eq, lam_in)
+                        lam_eq, lam_in, lam_v)
         worse = merit1 > merit0 + 1e-12 * merit0.abs()
         if not bool(worse.any()):
             return alpha
@@ -647,13 +701,15 @@ def _positions(poses: torch.Tensor, con: _Constraints) -> torch.Tensor:
     return (T_l[..., :3, :3] @ con.local.unsqueeze(-1)).squeeze(-1) + T_l[..., :3, 3]
 
 
-def _merit(p: _Problem, w: _Window, xl, c_eq, g_in, lam_eq, lam_in) -> torch.Tensor:
+def _merit(p: _Problem, w: _Window, xl, c_eq, g_in, lam_eq, lam_in, lam_v=None) -> torch.Tensor:
     """Augmented-Lagrangian merit of every finger's window, (F,): the quadratic terms plus the constraint terms."""
     F = xl.shape[0]
     flat = xl.reshape(F, -1)
     value = 0.5 * (flat * (w.H0 @ flat.unsqueeze(-1)).squeeze(-1)).sum(-1) - (w.b0 * flat).sum(-1)
     pen_eq = 0.5 * p.rho * ((c_eq + lam_eq / p.rho) ** 2).sum(-1) * w.m_eq
     pen_in = 0.5 * p.rho * (lam_in / p.rho - g_in).clamp_min(0) ** 2 * w.m_in
+    if lam_v is not None:
+        value = value + speed_penalty(xl, p.layout.valid, p.joint_step, lam_v, p.rho_speed)
     value = value.index_add(0, w.eq.finger.reshape(-1), pen_eq.reshape(-1))
     return value.index_add(0, w.ineq.finger.reshape(-1), pen_in.reshape(-1))
 
@@ -755,28 +811,40 @@ def _solve_frozen(H: torch.Tensor, b: torch.Tensor, frozen: torch.Tensor, values
 # Collisions and results
 # ----------------------------------------------------------------------------------------------------------------
 def _collision_constraints(hand: HandModel, layout: _Layout, pen, margin: float, like: torch.Tensor) -> _Constraints:
-    """One-sided constraints for the deepest sample of every penetrating movable link, (T, M) slots (no slots if
-    ``pen`` is None).
+    """One-sided constraints for the deepest capsule-axis point of every penetrating movable link, (T, M) slots (no
+    slots if ``pen`` is None). ``pen``: :func:`.exact.capsule_penetration` of the motion.
 
     Deviation from the paper: §4.3 substitutes the deepest penetrating point and its surface point into the contact
-    equation (an equality). Here the point is only kept on the outer side of the object's tangent plane at the
-    surface point, pushed ``margin`` further out, so it may slide along the surface or leave it; an equality would
-    pin it and fight the smoothing. Proximal phalanges are included, not only intermediate and distal ones.
+    equation (an equality). Here the link's capsule is kept out: its deepest axis point stays on the outer side of
+    the plane through the surface point, offset by the radius plus ``margin``, so it may slide along the surface
+    or leave it; an equality would pin it and fight the smoothing. Proximal phalanges are included, not only
+    intermediate and distal ones.
     """
     T = like.shape[0]
     if pen is None:
         z3, zl = like.new_zeros(T, 0, 3), torch.zeros(T, 0, dtype=torch.long, device=like.device)
         return _Constraints(zl, zl, z3, z3, zl.bool(), z3)
+    depth, local, point, normal, sd = pen
     m = layout.movable
-    value = pen.deepest_value[:, m]                                                # (T, M)
-    index = pen.deepest_index[:, m].clamp(min=0)
-    normal = pen.deepest_normal[:, m]
-    mask = (value < -margin) & torch.isfinite(value)
-    push = torch.where(mask, margin - value, torch.zeros_like(value))  # 0 for links without samples (value inf)
-    target = pen.deepest_point[:, m] + push.unsqueeze(-1) * normal
+    depth, local, point, normal, sd = depth[:, m], local[:, m], point[:, m], normal[:, m], sd[:, m]
+    mask = (depth > margin) & torch.isfinite(depth)
+    # the axis point must get to sd = radius + margin: move it out along the normal by the difference
+    push = torch.where(mask, depth + margin, torch.zeros_like(depth))
+    target = point + push.unsqueeze(-1) * normal
     link = m.expand(T, -1)
-    return _Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=hand.sample_points[index],
-                        target=target, mask=mask, normal=normal)
+    return _Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=local, target=target, mask=mask,
+                        normal=normal)
+
+
+def _table_constraints(hand: HandModel, layout: _Layout, poses: torch.Tensor, table: float,
+                       margin: float) -> _Constraints:
+    """One-sided constraints keeping every movable link's capsule above the table (see
+    :func:`.reconstruct_bounds.table_constraint_parts`), (T, M) slots."""
+    m = layout.movable
+    local, target, normal, mask = table_constraint_parts(hand, poses, m, table, margin)
+    link = m.expand(poses.shape[0], -1)
+    return _Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=local, target=target, mask=mask,
+                        normal=normal)
 
 
 def _result(p: _Problem, q: torch.Tensor, contacts: ContactTrack, penetration: torch.Tensor,

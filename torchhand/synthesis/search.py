@@ -54,8 +54,11 @@ class SearchSettings:
     relocate_radius: float = 0.03  # neighbourhood of a relocation, metres
     establish: float = 0.35        # probability that a free finger with patch samples establishes contact
     free_weight: float = 3.0       # contact-force preference: weight of fingers that applied no force before
-    solutions: int = 10            # stop after this many solutions
-    time_budget: float = 120.0     # stop after this many seconds
+    solutions: int = 10            # stop after this many accepted solutions
+    max_nodes: int | None = None   # stop after the round in which this many node tests (frames) were run: a
+    #                                budget in work units, so a seed gives the same run on any machine
+    time_budget: float | None = None   # wall-clock cap, seconds (None: none); a run stopped by it depends on the
+    #                                machine's speed and load
 
 
 @dataclass
@@ -70,6 +73,8 @@ class SearchStats:
     restarts: int = 0
     deepest_frame: int = 0           # the furthest frame any path reached
     rejections_by_frame: list = field(default_factory=list)   # per frame [kinematic, finger_finger, dynamic]
+    paths_found: int = 0             # distinct full paths found (accepted or not)
+    stopped_by: str = ""             # "solutions", "max_nodes" or "time_budget"
 
 
 @dataclass(frozen=True)
@@ -147,7 +152,9 @@ class _Search:
         self.window = max(1.0, self.T / max(s.epsilon, 1e-9))
         self.trees = [_Tree(i, seed * 1000 + i) for i in range(s.trees)]
         self.stats = SearchStats(rejections_by_frame=[[0, 0, 0] for _ in range(self.T)])
-        self.solutions: list[tuple[int, list[_Node]]] = []
+        self.solutions: list[tuple[int, list[_Node]]] = []   # accepted paths
+        self.accepted: list[Solution] = []
+        self.accept = None
         self.uid = 0
         self.solution_nodes: set = set()
         self.solution_q: list = []
@@ -424,17 +431,33 @@ class _Search:
         return results
 
     # --- main loop --------------------------------------------------------------------------------------------
-    def run(self, progress=None, reserve_per_solution: float = 0.0) -> list[Solution]:
+    def run(self, progress=None, accept=None) -> list[Solution]:
+        """Grow the trees until ``solutions`` paths are accepted or a budget is spent (``max_nodes`` node tests,
+        checked after every round, or the ``time_budget`` cap). ``accept(solution) -> bool`` is called on every
+        new full path as it is found (default: accept all); only accepted paths count and are returned."""
         s = self.s
+        self.accept = accept
         start = time.perf_counter()
         for tree in self.trees:
             self._restart(tree)
-        # the budget shrinks by ``reserve_per_solution`` for every path found (time its reconstruction needs)
-        while len(self.solutions) < s.solutions and \
-                time.perf_counter() - start < s.time_budget - reserve_per_solution * len(self.solutions):
+
+        def spent() -> bool:
+            if len(self.solutions) >= s.solutions:
+                self.stats.stopped_by = "solutions"
+            elif s.max_nodes is not None and self.stats.nodes_tested >= s.max_nodes:
+                self.stats.stopped_by = "max_nodes"
+            elif s.time_budget is not None and time.perf_counter() - start >= s.time_budget:
+                self.stats.stopped_by = "time_budget"
+            else:
+                return False
+            return True
+
+        while not spent():
             jobs = []
             for tree in self.trees:
                 node = self._frontier(tree)
+                if len(self.solutions) >= s.solutions:
+                    break
                 if node is None:
                     continue
                 w = self._window(tree, node.t1)
@@ -456,7 +479,7 @@ class _Search:
                 progress(self)
         self.stats.time_s = time.perf_counter() - start
         self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
-        return [self._solution(tree_i, path) for tree_i, path in self.solutions]
+        return [sol for sol in self.accepted]
 
     def _frontier(self, tree: _Tree):
         """The node this tree expands next, after backtracking and consuming pending siblings; None if it
@@ -468,11 +491,16 @@ class _Search:
             if node.t1 >= self.T:                      # a full path: record it (unless seen), then backtrack
                 path = list(tree.stack[1:])
                 q = torch.cat([n.frames["q"] for n in path])
-                if not any(torch.allclose(q, other, atol=1e-4) for other in self.solution_q):
-                    self.solutions.append((tree.index, path))
+                if len(self.solutions) < self.s.solutions and \
+                        not any(torch.allclose(q, other, atol=1e-4) for other in self.solution_q):
                     self.solution_q.append(q)
-                    self.solution_nodes.update(path)
-                    tree.found += 1
+                    sol = self._solution(tree.index, path)
+                    self.stats.paths_found += 1
+                    if self.accept is None or self.accept(sol):
+                        self.solutions.append((tree.index, path))
+                        self.accepted.append(sol)
+                        self.solution_nodes.update(path)
+                        tree.found += 1
                 tree.stack.pop()
                 continue
             if node.children >= node.target or node.expansions >= self.s.max_expansions:
@@ -507,12 +535,14 @@ class _Search:
 
 def search(problem: SynthesisProblem, init: InitialSamples, settings: SearchSettings = SearchSettings(), *,
            node_settings: NodeTestSettings = NodeTestSettings(), seed: int = 0, progress=None,
-           reserve_per_solution: float = 0.0) -> tuple[list[Solution], SearchStats]:
-    """Run the search (see the module docstring). Returns the solutions in the order found and the counters.
+           accept=None) -> tuple[list[Solution], SearchStats]:
+    """Run the search (see the module docstring). Returns the accepted solutions in the order found and the
+    counters.
 
     progress: optional callable(search) after every batched expansion (it can read ``search.stats`` and
-    ``len(search.solutions)``). reserve_per_solution: seconds taken off the time budget for every path found.
+    ``len(search.solutions)``). accept: optional callable(Solution) -> bool on every new full path, as it is found
+    (the pipeline reconstructs, checks and writes it there); a path it rejects does not count.
     """
     runner = _Search(problem, init, settings, node_settings, seed)
-    sols = runner.run(progress, reserve_per_solution)
+    sols = runner.run(progress, accept)
     return sols, runner.stats

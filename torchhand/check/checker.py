@@ -1,0 +1,169 @@
+""":func:`check_result`: every figure of every solution of a result directory, from the directory alone."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from types import MappingProxyType
+from typing import Callable
+
+import numpy as np
+
+from ..errors import FileFormatError
+from ..result import Result, Solution, load_result
+from .contacts import cone_violations, contact_gaps, contact_slots
+from .geometry import ObjectMesh, object_mesh
+from .motion import (balance_errors, joint_acceleration, joint_limit_violation, joint_speed,
+                     mean_joint_difference)
+from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
+                          pose_hand, table_depth)
+from .report import FIGURES, CheckReport, Figure, SolutionCheck, resolve_limits
+
+__all__ = ["check_result", "check_solution"]
+
+
+def check_result(directory, *, limits=None, progress: Callable[[str], None] | None = None) -> CheckReport:
+    """Check every frame of every solution of a result directory with exact geometry.
+
+    Reads only the directory (:func:`torchhand.load_result`): the scene, ``hand.xml``, ``stats.json`` and the
+    solution files; a partial run (``complete`` false) is checked as far as it was written.
+
+    directory: a result directory (``docs/synthesis.md``, "Result directory")
+    limits: figure name -> limit overriding :data:`LIMITS` (and stats.json's ``max_joint_speed``), or None
+    progress: called with one line after each solution, or None
+    returns: a :class:`CheckReport`
+    Raises the loader's MissingFileError / FileFormatError / ShapeError for a missing or malformed directory or
+    file (naming it), UnknownNameError / InputValueError for bad ``limits``.
+    """
+    result = load_result(directory)
+    scene = result.scene
+    obj = object_mesh(scene.object.mesh, scene.object.mass)
+    speed = _stats_speed(result)
+    report_limits = resolve_limits(limits, max_joint_speed=speed, fps=scene.fps)
+    notes = []
+    for side, model in result.hand_models.items():
+        notes += capsule_notes(model, side)
+    if not obj.watertight:
+        notes.append("the object's mesh is not watertight: mass properties from its convex hull, inside/outside "
+                     "from trimesh's ray test")
+    checks: list[SolutionCheck] = []
+    earlier: list[tuple[int, np.ndarray]] = []
+    n = len(result.solution_files)
+    for i in range(n):
+        sol = result.solution(i)
+        lim = resolve_limits(limits, max_joint_speed=speed, fps=sol.fps)
+        check, q_all = check_solution(sol, result, obj, lim, earlier)
+        checks.append(check)
+        earlier.append((sol.index, q_all))
+        if progress is not None:
+            progress(f"checked {check.name} ({i + 1}/{n}): {'ok' if check.passed else 'FAILS'}")
+    return CheckReport(path=str(Path(result.path)), scene=scene.name, complete=result.complete,
+                       solutions=tuple(checks), limits=MappingProxyType(report_limits), notes=tuple(notes))
+
+
+def _stats_speed(result: Result):
+    v = result.stats.get("max_joint_speed")
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise FileFormatError(f"{result.path / 'stats.json'}: max_joint_speed: expected a positive number of "
+                              f"rad/s, got {v!r}")
+    return float(v)
+
+
+def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
+                   earlier: list[tuple[int, np.ndarray]] = ()) -> tuple[SolutionCheck, np.ndarray]:
+    """Every figure of one solution.
+
+    sol: the solution; result: its directory (scene, hand models); obj: :func:`.geometry.object_mesh` of the
+    scene's object; limits: :func:`.report.resolve_limits`; earlier: (index, joint angles of all hands side by
+    side (T, D_all)) of the solutions before it
+    returns: the :class:`SolutionCheck` and this solution's joint angles of all hands side by side
+    """
+    hands: dict[str, PosedHand] = {}
+    for hs in sol.hands:
+        if hs.side not in result.hand_models:
+            raise FileFormatError(f"{sol.path}: has a {hs.side} hand, the scene has "
+                                  f"{', '.join(result.hand_models)}")
+        hands[hs.side] = pose_hand(result.hand_models[hs.side], hs.side, hs.q, hs.joint_names, hs.root_pose,
+                                   sol.path)
+    fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits)
+    fig.update(_contact_figures(sol, result.scene, hands, obj, limits))
+    q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier)
+    fig.update(joint_figs)
+    ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
+    return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered), q_all
+
+
+def _columns(arrays: list, labels: list) -> tuple[np.ndarray, list]:
+    """Per-hand (T, X_h) arrays side by side, with their column labels."""
+    return np.concatenate(arrays, axis=1), [x for part in labels for x in part]
+
+
+def _penetration_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict) -> dict:
+    fig = {}
+    links = [[h.link(li) for li in range(h.model.num_links)] for h in hl]
+    values, labels = _columns([object_depth(h, obj, sol.object_pose) for h in hl], links)
+    fig["object_penetration_m"] = Figure.worst("object_penetration_m", values, limits["object_penetration_m"],
+                                               lambda t, x: labels[x])
+    if scene.environment.table:
+        values, _ = _columns([table_depth(h, scene.environment.table_height) for h in hl], links)
+        fig["table_penetration_m"] = Figure.worst("table_penetration_m", values, limits["table_penetration_m"],
+                                                  lambda t, x: labels[x])
+    if len(hl) == 2:
+        h1, h2 = hl
+        d = hand_hand_depth(h1, h2)
+        L2 = d.shape[2]
+        fig["hand_penetration_m"] = Figure.worst(
+            "hand_penetration_m", d.reshape(d.shape[0], -1), limits["hand_penetration_m"],
+            lambda t, x: f"{h1.link(x // L2)} - {h2.link(x % L2)}")
+    pairs = [(h, finger_pairs(h.model)) for h in hl]
+    values, pair_labels = _columns([finger_depth(h, p) for h, p in pairs],
+                                   [[f"{h.link(a)} - {h.link(b)}" for a, b in p] for h, p in pairs])
+    fig["finger_penetration_m"] = Figure.worst("finger_penetration_m", values, limits["finger_penetration_m"],
+                                               lambda t, x: pair_labels[x])
+    return fig
+
+
+def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: ObjectMesh, limits: dict) -> dict:
+    first_side = next(iter(hands))
+    slots = contact_slots(hands, sol.contact_link_name, sol.contact_link, sol.contact_mask, sol.path)
+    gap_obj, gap_hand, closest, tri = contact_gaps(hands, slots, sol.contact_point, obj, sol.object_pose)
+
+    def where(t, k):
+        name = sol.contact_link_name[int(sol.contact_link[t, k])]
+        return f"contact {k}, {name if '/' in name else f'{first_side}/{name}'}"
+
+    weight = scene.object.mass * max(float(np.linalg.norm(scene.gravity.numpy())), 1e-12)
+    hand_cone, table_cone = cone_violations(slots, sol.contact_force, closest, tri, obj, sol.object_pose,
+                                            scene.friction, sol.env_contact_mask, sol.env_contact_force,
+                                            scene.environment.friction, 1e-6 * weight)
+    K = hand_cone.shape[1]
+    return {
+        "contact_object_m": Figure.worst("contact_object_m", gap_obj, limits["contact_object_m"], where),
+        "contact_hand_m": Figure.worst("contact_hand_m", gap_hand, limits["contact_hand_m"], where),
+        "cone_violation": Figure.worst("cone_violation", np.concatenate([hand_cone, table_cone], axis=1),
+                                       limits["cone_violation"],
+                                       lambda t, x: where(t, x) if x < K else f"table contact {x - K}"),
+    }
+
+
+def _motion_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict,
+                    earlier) -> tuple[np.ndarray, dict]:
+    f_err, t_err = balance_errors(sol, obj, scene.object.mass, scene.gravity.numpy().astype(np.float64))
+    fig = {"force_error": Figure.worst("force_error", f_err[:, None], limits["force_error"],
+                                       lambda t, x: "object"),
+           "torque_error": Figure.worst("torque_error", t_err[:, None], limits["torque_error"],
+                                        lambda t, x: "object")}
+    joints = [h.joint(j) for h in hl for j in range(h.model.num_joints)]
+    q_all = np.concatenate([h.q for h in hl], axis=1)
+    bounds = np.concatenate([h.model.joint_limits.numpy().astype(np.float64) for h in hl], axis=0)
+    for name, values in (("joint_limit_rad", joint_limit_violation(q_all, bounds)),
+                         ("joint_speed_rad_s", joint_speed(q_all, sol.fps)),
+                         ("joint_acceleration_rad_s2", joint_acceleration(q_all, sol.fps))):
+        fig[name] = Figure.worst(name, values, limits[name], lambda t, x: joints[x])
+    same = [(i, mean_joint_difference(q_all, q)) for i, q in earlier if q.shape == q_all.shape]
+    if same:
+        i, d = min(same, key=lambda x: x[1])
+        fig["distinct_deg"] = Figure.make("distinct_deg", d, limits["distinct_deg"], None, f"sol_{i:03d}")
+    return q_all, fig

@@ -1,0 +1,110 @@
+"""``torchhand check RESULT_DIR [--json FILE]``: independent checks of a result directory, with exact geometry.
+
+Every frame of every solution: hand-object, hand-table, hand-hand and finger-finger penetration of hand.xml's
+capsules; contact points on the object and on their links; every force in its friction cone (the scene's friction,
+the mesh's normals); the object's Newton-Euler balance with mass properties from its mesh; joint limits, speeds
+and accelerations; duplicate solutions (torchhand.check, docs/check.md).
+
+Prints one row per solution with its worst figures (a * marks a failing one), a verdict line, and one line per
+failing solution naming its failing figures. Exit code 0 when every solution passes, 1 when any fails (or there
+is none), 2 for bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from ..errors import MissingFileError
+
+_COLUMNS = (  # figure, header, scale, format
+    ("object_penetration_m", "obj mm", 1e3, "{:.1f}"),
+    ("table_penetration_m", "table mm", 1e3, "{:.1f}"),
+    ("hand_penetration_m", "hands mm", 1e3, "{:.1f}"),
+    ("finger_penetration_m", "fingers mm", 1e3, "{:.1f}"),
+    ("contact_object_m", "c-obj mm", 1e3, "{:.1f}"),
+    ("contact_hand_m", "c-hand mm", 1e3, "{:.1f}"),
+    ("cone_violation", "cone", 1.0, "{:.1e}"),
+    ("force_error", "force", 1.0, "{:.3f}"),
+    ("torque_error", "torque", 1.0, "{:.3f}"),
+    ("joint_limit_rad", "limit rad", 1.0, "{:.1e}"),
+    ("joint_speed_rad_s", "rad/s", 1.0, "{:.1f}"),
+    ("joint_acceleration_rad_s2", "rad/s2", 1.0, "{:.0f}"),
+    ("distinct_deg", "diff deg", 1.0, "{:.1f}"),
+)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check", help="independent physical checks of a result directory (exact geometry)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("result", metavar="RESULT_DIR", help="a result directory (e.g. of `torchhand synthesize`)")
+    p.add_argument("--json", metavar="FILE", help="also write the whole report as JSON (atomically)")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from torchhand.check import check_result
+
+    json_path = None
+    if args.json:
+        json_path = Path(args.json)
+        folder = json_path.parent if str(json_path.parent) else Path(".")
+        if not folder.is_dir():
+            raise MissingFileError(f"--json: folder {folder} does not exist")
+    progress = None if args.no_progress else (lambda line: print(line, file=sys.stderr, flush=True))
+    report = check_result(args.result, progress=progress)
+    if json_path is not None:
+        _write_json(json_path, report.to_dict())
+    print(format_table(report))
+    n, ok = len(report.solutions), sum(s.passed for s in report.solutions)
+    run_kind = "complete run" if report.complete else "partial run"
+    if n == 0:
+        print(f"FAIL: {report.path} has no solutions to check ({run_kind})")
+        return 1
+    verdict = "PASS" if report.passed else "FAIL"
+    print(f"{verdict}: {ok} of {n} solutions pass ({run_kind}, scene {report.scene})")
+    for note in report.notes:
+        print(f"note: {note}")
+    for line in report.failures:
+        print(line)
+    if json_path is not None:
+        print(f"wrote {json_path}")
+    return 0 if report.passed else 1
+
+
+def format_table(report) -> str:
+    """One row per solution: its worst figures, a * after a failing one, "-" where a figure does not apply."""
+    present = [c for c in _COLUMNS if any(c[0] in s.figures for s in report.solutions)]
+    header = ["solution", "ok"] + [c[1] for c in present]
+    rows = [header]
+    for s in report.solutions:
+        row = [s.name, "yes" if s.passed else "NO"]
+        for name, _, scale, fmt in present:
+            f = s.figures.get(name)
+            row.append("-" if f is None else fmt.format(f.value * scale) + ("" if f.ok else "*"))
+        rows.append(row)
+    limit_row = ["limit", ""] + [fmt.format(report.limits[name] * scale) if name in report.limits else ""
+                                 for name, _, scale, fmt in present]
+    rows.append(limit_row)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    return "\n".join("  ".join(c.rjust(w) if i > 1 else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
+                     for r in rows)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    folder = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=2)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
