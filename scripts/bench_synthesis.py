@@ -8,11 +8,12 @@ sizes N, median of ``repeats`` runs; the reference in the same run is the same t
 (N = 1 in a Python loop), and the paper's figure (about 5 node tests per second: 200 ms kinematic + 5-10 ms
 dynamic test per frame, 2.8 GHz Core 2 Duo) is printed beside it.
 
-``scenes``: ``torchhand synthesize`` on each scene with a time budget (default 120 s), the Table 1 columns of each
-run, and the exact-geometry checks (:mod:`torchhand.check`) of every solution written.
+``scenes``: ``torchhand synthesize`` on each scene with a node budget (default 60000 node tests: the same run on
+any machine), the Table 1 columns of each run, the in-search node-test rate beside the one-at-a-time rate measured
+in the same run (and the paper's), and the independent checks (:mod:`torchhand.check`) of every solution written.
 
     python scripts/bench_synthesis.py nodes --json bench_nodes.json
-    python scripts/bench_synthesis.py scenes --budget 120 --json bench_scenes.json
+    python scripts/bench_synthesis.py scenes --max-nodes 60000 --json bench_scenes.json
 """
 
 from __future__ import annotations
@@ -87,19 +88,32 @@ def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024
     return rows
 
 
-def bench_scenes(scenes=SCENES, budget: float = 120.0, seed: int = 0, mug: str | None = None,
-                 mug_frames: str = "614:674", mug_slide_speed: float = 0.05) -> list[dict]:
+def one_at_a_time_rate(device: str = "cpu", dtype=torch.float32, loop: int = 16, repeats: int = 3) -> float:
+    """Node tests per second of box-turn's hold frame tested one candidate at a time (the reference rate)."""
+    _, one = node_batch(1, device, dtype)
+
+    def sequential():
+        for _ in range(loop):
+            one()
+
+    return loop / time_fn(sequential, device, repeats=repeats, warmup=1)["median_s"]
+
+
+def bench_scenes(scenes=SCENES, max_nodes: int = 60000, seed: int = 0, mug: str | None = None,
+                 mug_frames: str = "614:674", mug_slide_speed: float = 0.05, threads: int = 1) -> list[dict]:
     from torchhand.cli import main as cli
     from torchhand.check import check_result
 
     rows = []
+    one = one_at_a_time_rate()
     jobs = [(s, s, None, []) for s in scenes]
     if mug:
         jobs.append((f"manipnet-mug {mug_frames}", mug, mug_frames, ["--slide-speed", str(mug_slide_speed)]))
     for label, scene, frames, extra in jobs:
         out = tempfile.mkdtemp(prefix="bench-synth-")
-        argv = ["synthesize", scene, "--out", out, "--time-budget", str(budget), "--seed", str(seed),
-                "--no-progress"] + (["--frames", frames] if frames else []) + extra
+        argv = ["synthesize", scene, "--out", out, "--max-nodes", str(max_nodes), "--seed", str(seed),
+                "--threads", str(threads), "--no-progress", "--overwrite"] + (["--frames", frames] if frames else []) \
+            + extra
         t0 = time.perf_counter()
         cli(argv)
         wall = time.perf_counter() - t0
@@ -112,7 +126,12 @@ def bench_scenes(scenes=SCENES, budget: float = 120.0, seed: int = 0, mug: str |
                      "solutions": stats["solutions"], "dead_ends": stats["dead_ends"],
                      "total_frames": stats["total_frames"], "success_frames": stats["success_frames"],
                      "success_ratio": stats["success_ratio"], "solution_ratio": stats["solution_ratio"],
-                     "nodes_per_s": stats["nodes_per_second"], "excluded": stats["excluded"],
+                     "nodes_tested": stats["nodes_tested"], "stopped_by": stats["stopped_by"],
+                     "finalize_s": stats["timings_s"]["finalize_s"],
+                     "nodes_per_s": stats["nodes_per_second"], "one_at_a_time_per_s": one,
+                     "paper_per_s": PAPER_NODES_PER_S, "excluded": stats["excluded"],
+                     "unsmoothed_excluded": stats["excluded_by_reason"]["unsmoothed"],
+                     "duplicates": stats["excluded_by_reason"]["duplicate"],
                      "diversity_m": stats["diversity_m"], "checks_pass": report.passed,
                      "checks_failed": len(report.failures),
                      "worst_penetration_mm": 1000 * penetration,
@@ -127,7 +146,8 @@ def main(argv=None) -> int:
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--batch", type=int, nargs="+", default=[64, 256, 1024])
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--budget", type=float, default=120.0, help="time budget per scene, seconds")
+    p.add_argument("--max-nodes", type=int, default=60000, help="node budget per scene (default 60000)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads of each run (default 1)")
     p.add_argument("--scenes", nargs="+", default=list(SCENES))
     p.add_argument("--mug", help="a scene directory imported from ManipNet's mug1 (adds a 2 s segment)")
     p.add_argument("--mug-frames", default="614:674", help="scene frames of the segment (default 614:674, 2 s)")
@@ -136,7 +156,8 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one run per scene and seed (default 0)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
-    out = {"machine": machine(), "command": " ".join(sys.argv)}
+    torch.set_num_threads(a.threads)
+    out = {"machine": machine(), "command": " ".join(sys.argv), "threads": a.threads}
     print(f"machine: {out['machine']}")
     if a.suite in ("nodes", "all"):
         rows = bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats)
@@ -146,7 +167,7 @@ def main(argv=None) -> int:
         out["nodes"] = rows
     if a.suite in ("scenes", "all"):
         rows = [r for seed in a.seeds
-                for r in bench_scenes(a.scenes, a.budget, seed, a.mug, a.mug_frames, a.mug_slide_speed)]
+                for r in bench_scenes(a.scenes, a.max_nodes, seed, a.mug, a.mug_frames, a.mug_slide_speed, a.threads)]
         print("\n[scenes: Ye & Liu Table 1 columns]")
         print_table(rows, list(rows[0].keys()))
         out["scenes"] = rows

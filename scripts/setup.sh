@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install everything torchhand needs on a fresh Debian/Ubuntu machine with Python >= 3.10:
+# Install everything torchhand needs on a fresh Debian/Ubuntu machine with Python >= 3.11:
 # system libraries for headless rendering (Mesa's EGL and OSMesa), the CPU build of torch 2.13.0, and torchhand
 # itself (editable, with the test extras). Safe to run again: every step is idempotent.
 set -euo pipefail

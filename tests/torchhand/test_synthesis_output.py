@@ -17,8 +17,9 @@ import pytest
 from torchhand.cli import main as cli
 from torchhand.result import load_result
 
-# box-turn's first 20 frames: small enough for a few seconds of search, long enough to need a real path
-SMALL = ["--frames", "0:20", "--max-nodes", "1500", "--solutions", "2", "--seed", "0", "--no-progress"]
+# box-turn's first 8 frames with a small search (4 trees of 8 candidates): a few seconds, a real path
+FRAMES = ["--frames", "0:8", "--trees", "4", "--candidates", "8"]
+SMALL = FRAMES + ["--max-nodes", "2000", "--solutions", "2", "--seed", "0", "--no-progress"]
 
 
 def _arrays(out: Path) -> list[dict]:
@@ -40,13 +41,13 @@ def test_small_run_writes_a_complete_versioned_result(small_run):
     rc, out = small_run
     assert rc == 0
     stats = json.loads((out / "stats.json").read_text())
-    assert stats["complete"] is True and stats["format_version"] == 1 and stats["max_nodes"] == 1500
+    assert stats["complete"] is True and stats["format_version"] == 1 and stats["max_nodes"] == 2000
     assert stats["stopped_by"] in ("solutions", "max_nodes") and stats["threads"] >= 1
     res = load_result(out)
     assert res.complete and len(res.solutions) == stats["solutions"] >= 1
     for sol in res.solutions:
         assert sol.format_version == 1 and sol.reconstructed
-        assert sol.q.shape == (20, 30)
+        assert sol.q.shape == (8, 30)
     assert not (out / ".torchhand.lock").exists()
 
 
@@ -82,8 +83,8 @@ def test_overwrite_replaces_a_result_but_never_another_directory(tmp_path, capsy
     assert "not a result directory" in capsys.readouterr().err
     assert (other / "cat.jpg").read_bytes() == b"x"
     out = tmp_path / "r"
-    assert cli(["synthesize", "box-turn", "--out", str(out), "--frames", "0:20", "--max-nodes", "1500",
-                "--solutions", "1", "--seed", "1", "--no-progress"]) == 0
+    assert cli(["synthesize", "box-turn", "--out", str(out)] + FRAMES + ["--max-nodes", "2000", "--solutions", "1",
+                                                                        "--seed", "1", "--no-progress"]) == 0
     assert cli(["synthesize", "box-turn", "--out", str(out), "--overwrite"] + SMALL) == 0
     stats = json.loads((out / "stats.json").read_text())
     assert stats["seed"] == 0 and stats["complete"]
@@ -118,7 +119,7 @@ def test_an_interrupted_run_leaves_its_solutions_readable(tmp_path, sig):
     """kill -9 (or Ctrl-C) after the first solution: every solution written so far reads back, and stats.json
     says the run is partial. The run is bounded by nodes; the wait below only guards against a hang."""
     out = tmp_path / "k"
-    cmd = [sys.executable, "-m", "torchhand.cli", "synthesize", "box-turn", "--out", str(out), "--frames", "0:20",
+    cmd = [sys.executable, "-m", "torchhand.cli", "synthesize", "box-turn", "--out", str(out), *FRAMES,
            "--max-nodes", "200000", "--solutions", "50", "--seed", "0", "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
@@ -136,7 +137,7 @@ def test_an_interrupted_run_leaves_its_solutions_readable(tmp_path, sig):
     res = load_result(out)
     assert not res.complete
     assert len(res.solutions) >= 1
-    assert all(s.q.shape == (20, 30) for s in res.solutions)
+    assert all(s.q.shape == (8, 30) for s in res.solutions)
     if sig == signal.SIGINT:
         assert json.loads((out / "stats.json").read_text()).get("interrupted") is True
     # a later run into the same place is refused without --overwrite (the partial result is kept) ...
@@ -149,7 +150,7 @@ def test_an_interrupted_run_leaves_its_solutions_readable(tmp_path, sig):
 def test_two_runs_cannot_write_one_directory(tmp_path):
     """A second run into a directory that another run is writing fails at once with exit 2."""
     out = tmp_path / "shared"
-    cmd = [sys.executable, "-m", "torchhand.cli", "synthesize", "box-turn", "--out", str(out), "--frames", "0:20",
+    cmd = [sys.executable, "-m", "torchhand.cli", "synthesize", "box-turn", "--out", str(out), *FRAMES,
            "--max-nodes", "200000", "--solutions", "50", "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import MissingFileError
+from ._common import add_threads_argument, apply_threads
 
 _COLUMNS = (  # figure, header, scale, format
     ("object_penetration_m", "obj mm", 1e3, "{:.1f}"),
@@ -44,10 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("result", metavar="RESULT_DIR", help="a result directory (e.g. of `torchhand synthesize`)")
     p.add_argument("--json", metavar="FILE", help="also write the whole report as JSON (atomically)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
+    add_threads_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    apply_threads(args.threads)
     from torchhand.check import check_result
 
     json_path = None

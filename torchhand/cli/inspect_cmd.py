@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 
 from ..errors import InputValueError
+from ._common import add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,10 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="device (default cpu)")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"], help="dtype (default float32)")
     p.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    add_threads_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    apply_threads(args.threads)
     from tqdm import tqdm
 
     from ..collision import finger_interpenetration, hand_object_penetration

@@ -12,6 +12,7 @@ Writes into DIR:
 from __future__ import annotations
 
 import argparse
+from ._common import add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,10 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--solution", type=int, default=0, help="solution for the contact and force plots (default 0)")
     p.add_argument("--solutions", default="all", help="solutions overlaid in joints.png: 0,1,2 or all (default all, "
                                                       "at most 8)")
+    add_threads_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    apply_threads(args.threads)
     from torchhand.render.jobs import plot_result
 
     written = plot_result(args.result, args.out, solution=args.solution, solutions=args.solutions)

@@ -14,6 +14,7 @@ without .mp4/.gif). Rendering is offscreen (EGL, or OSMesa); PYOPENGL_PLATFORM i
 from __future__ import annotations
 
 import argparse
+from ._common import add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,10 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                           "a solution .npz")
     p.add_argument("--no-shadows", action="store_true", help="no cast shadows (about twice as fast on a CPU)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_threads_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    apply_threads(args.threads)
     from torchhand.render.jobs import parse_size, render_result
 
     info = render_result(args.result, args.out, solutions=args.solutions, grid=args.grid, size=parse_size(args.size),

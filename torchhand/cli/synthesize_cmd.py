@@ -21,7 +21,7 @@ from ._common import Progress, add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..synthesis.pipeline import DEFAULT_MAX_NODES
+    from ..synthesis import DEFAULT_MAX_NODES
 
     p = sub.add_parser("synthesize", help="find diverse, physically plausible finger motions for a scene",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

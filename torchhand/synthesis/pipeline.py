@@ -34,6 +34,7 @@ import torch
 
 from ..errors import InputValueError
 from ..scene import Scene, load_scene
+from . import DEFAULT_MAX_NODES
 from .initial import prune_patches
 from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
 from .problem import SynthesisProblem, build_problem
@@ -68,9 +69,6 @@ class FinalSolution:
     index: int
 
 
-DEFAULT_MAX_NODES = 60000
-"""The default node budget of :func:`synthesize` (node tests, i.e. frames tested): enough for ten solutions of
-every built-in scene on most seeds (BENCHMARKS.md), the same answer on any machine."""
 
 
 @dataclass(frozen=True)
@@ -116,12 +114,8 @@ class SynthesisResult:
     def save(self, directory, *, overwrite: bool = False):
         """Write the result directory (docs/result_format.md) atomically; an existing result directory is
         replaced only with ``overwrite``. Returns its path."""
-        from .output import ResultWriter
-        writer = ResultWriter(directory, overwrite=overwrite)
-        writer.start(self.problem, self.scene)
-        for i in range(len(self.finals)):
-            writer.add(self, i)
-        return writer.finish(self)
+        from .output import write_result
+        return write_result(self, directory, overwrite=overwrite)
 
 
 def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
@@ -134,14 +128,14 @@ def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -
                           for f in dataclasses.fields(FrameResult)})
 
 
-def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings):
+def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings, exact: bool = True):
     """The contact and dynamic test of a whole motion q (T, H, D), with the search's sliding rule (a contact held
     since the previous frame whose hand point moves on the object faster than ``ns.slide_speed`` slides): one
     pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
     ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None,
-                             exact=True)                                 # full accuracy, exact normals
+                             exact=exact)                                # full accuracy, the mesh's normals
     first = evaluate_poses(problem, t, q, settings=ns, dynamics=False)     # contacts only
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
