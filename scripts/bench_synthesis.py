@@ -46,6 +46,9 @@ def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: in
     problem = build_problem(torchhand.load_scene("box-turn"), gen, device=device, dtype=dtype)
     init = prune_patches(problem, gen)
     hand = problem.hands[0]
+    # the hold frame nearest ``frame`` where every finger has pruned patch samples
+    frame = min((t for t in range(problem.T) if all(init.samples(t, 0, f).numel() for f in range(5))),
+                key=lambda t: abs(t - frame))
     obj = torch.zeros(N, 1, 5, 3, dtype=dtype, device=device)
     for f in range(5):
         idx = init.samples(frame, 0, f)

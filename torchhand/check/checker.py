@@ -28,7 +28,7 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
     Reads only the directory (:func:`torchhand.load_result`): the scene, ``hand.xml``, ``stats.json`` and the
     solution files; a partial run (``complete`` false) is checked as far as it was written.
 
-    directory: a result directory (``docs/synthesis.md``, "Result directory")
+    directory: a result directory (``docs/result_format.md``)
     limits: figure name -> limit overriding :data:`LIMITS` (and stats.json's ``max_joint_speed``), or None
     progress: called with one line after each solution, or None
     returns: a :class:`CheckReport`
