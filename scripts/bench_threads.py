@@ -46,12 +46,15 @@ def _digest(out: Path) -> str:
     return h.hexdigest()[:16]
 
 
+EXTRA: list = []   # more synthesize arguments (--extra)
+
+
 def _run(scene: str, max_nodes: int, threads: int, seed: int, solutions: int, env_extra: dict) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out"
         env = dict(os.environ, **env_extra)
         cmd = ["torchhand", "synthesize", scene, "--out", str(out), "--max-nodes", str(max_nodes), "--threads",
-               str(threads), "--seed", str(seed), "--solutions", str(solutions), "--no-progress"]
+               str(threads), "--seed", str(seed), "--solutions", str(solutions), "--no-progress", *EXTRA]
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -85,8 +88,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--hogs", type=int, default=1, help="busy processes beside the loaded runs (default 1)")
     ap.add_argument("--wait-policy", nargs="*", default=[], help="OMP_WAIT_POLICY values to compare under load")
+    ap.add_argument("--extra", default="", help="more synthesize arguments, e.g. '--frames 14:38'")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args(argv)
+    EXTRA[:] = args.extra.split()
     rows = []
     for n in args.threads:
         alone = _run(args.scene, args.max_nodes, n, args.seed, args.solutions, {})
