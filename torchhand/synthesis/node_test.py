@@ -45,6 +45,7 @@ from torchhand.kernels.status import SolverStatus
 
 from ..collision import hand_object_penetration
 from .exact import capsule_depth as link_capsule_depth, mesh_normals
+from .reconstruct_bounds import table_depth as capsule_table_depth
 from .problem import SynthesisProblem
 
 __all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points",
@@ -244,9 +245,7 @@ def table_depth(problem: SynthesisProblem, hand, poses: torch.Tensor) -> torch.T
     link poses (N, L, 4, 4). Zero everywhere without a table."""
     if problem.table_height is None:
         return poses.new_zeros(poses.shape[:2])
-    a = _transform(poses, hand.capsule_a)[..., 2]
-    b = _transform(poses, hand.capsule_b)[..., 2]
-    return problem.table_height - (torch.minimum(a, b) - hand.capsule_radius)
+    return capsule_table_depth(hand, poses, problem.table_height)
 
 
 def _finger_depth(hand, deepest_value: torch.Tensor) -> torch.Tensor:

@@ -136,7 +136,8 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
     t = torch.arange(T, device=q.device)
     ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None,
                              exact=exact)                                # full accuracy, the mesh's normals
-    first = evaluate_poses(problem, t, q, settings=ns, dynamics=False)     # contacts only
+    # contacts only (their normals do not matter here: the grid's, not the mesh's)
+    first = evaluate_poses(problem, t, q, settings=dataclasses.replace(ns, exact=False), dynamics=False)
     prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
     q_prev = torch.cat([q[:1], q[:-1]])
     res = evaluate_poses(problem, t, q, q_prev, prev_mask, settings=ns)
