@@ -1,8 +1,8 @@
-"""The ``torchhand render`` and ``torchhand plot`` jobs as library functions over a result directory.
+"""The ``torchhand render`` and ``torchhand plot`` jobs as library functions over a result directory or BVH files.
 
 :func:`result_clips` turns chosen solutions (and an optional reference motion) into labelled clips;
-:func:`render_result` writes them as a video; :func:`plot_result` writes the PNG plots. The CLI modules only parse
-arguments and call these.
+:func:`render_result` writes them as a video; :func:`render_bvh` draws BVH skeletons side by side on one timeline;
+:func:`plot_result` writes the PNG plots. The CLI modules only parse arguments and call these.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from .compose import RenderOptions, write_video
 from .contact_analysis import finger_contacts, solution_summary
 
 __all__ = ["parse_size", "parse_frames", "stats_line", "solution_title", "result_clips", "render_result",
-           "plot_result", "open_result"]
+           "plot_result", "open_result", "is_bvh", "per_file", "render_bvh"]
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -172,6 +172,71 @@ def render_result(path, out, *, solutions: str | None = None, grid: bool = False
     if fmt == "mp4":  # H.264 in yuv420p: even sizes
         w, h = w - w % 2, h - h % 2
     return {"out": str(written), "frames": n, "format": fmt, "panels": len(clips), "size": (w, h)}
+
+
+def is_bvh(path) -> bool:
+    """Whether ``path`` names a BVH file (by its suffix, any case)."""
+    return Path(path).suffix.lower() == ".bvh"
+
+
+def per_file(value: str | None, n: int, option: str, default: str = "auto") -> list[str]:
+    """``value`` for each of ``n`` files: None gives ``default``, ``"cm"`` the same for all, ``"cm,mm"`` one per
+    file in panel order."""
+    if value is None:
+        return [default] * n
+    parts = [v.strip() for v in str(value).split(",")]
+    if len(parts) == 1:
+        return parts * n
+    if len(parts) != n:
+        raise InputValueError(f"{option}: expected one value or one per BVH file ({n}), got {len(parts)}: {value!r}")
+    return parts
+
+
+def render_bvh(paths, out, *, compare=(), size=(640, 480), fps: float | None = None, fmt: str | None = None,
+               frames: str | None = None, orbit: bool = False, shadows: bool = True, units: str | None = None,
+               up: str | None = None, handedness: str | None = None, follow: str | None = None,
+               close_up: bool = True, progress: bool | None = None) -> dict:
+    """Draw BVH files side by side on one timeline (see ``torchhand render --help`` and docs/render.md).
+
+    paths: the BVH files drawn first; compare: BVH files drawn to their right (a hand capture beside the body it
+    was spliced into, say). units / up / handedness: one value for all files or comma-separated, one per file in
+    panel order (None: "auto", "auto", "right"). frames: "A:B", frames of the first file's clock. fps: output rate
+    (default the first file's). Returns a summary dict (output path, frame count, size, format, panels).
+    """
+    from tqdm import tqdm
+
+    from .bvh_clip import skeleton_from_bvh
+    from .overlay import grid_shape
+    from .skeleton_view import render_skeleton_frames, skeleton_panels, timeline, timeline_length
+    from .video import FrameWriter, check_writer, infer_format
+
+    files = [Path(p) for p in (*paths, *(compare or ()))]
+    if not files:
+        raise InputValueError("render_bvh: no BVH files given")
+    fmt = infer_format(out, fmt)
+    check_writer(fmt)  # fail before the slow part
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise InputValueError(f"--fps: expected a positive number, got {fps}")
+    n = len(files)
+    skeletons = [skeleton_from_bvh(f, units=u, up=a, handedness=h) for f, u, a, h in
+                 zip(files, per_file(units, n, "--bvh-units"), per_file(up, n, "--bvh-up"),
+                     per_file(handedness, n, "--bvh-handedness", "right"))]
+    start, stop = parse_frames(frames, timeline_length(skeletons))
+    fps, times = timeline(skeletons, start, stop, fps)
+    opts = RenderOptions(width=size[0], height=size[1], orbit=orbit, shadows=shadows)
+    panels = skeleton_panels(skeletons, times, fps, opts, follow=follow, close_up=close_up)
+    bar = tqdm(total=len(times), desc="render", unit="frame", disable=(not progress) if progress is not None else None)
+    try:
+        with FrameWriter(out, fmt, fps) as writer:
+            for frame in render_skeleton_frames(panels, opts, progress=bar):
+                writer.write(frame)
+    finally:
+        bar.close()
+    rows, cols = grid_shape(len(panels), opts.max_cols)
+    w, h = cols * size[0] + 2 * (cols - 1), rows * size[1] + 2 * (rows - 1)
+    if fmt == "mp4":  # H.264 in yuv420p: even sizes
+        w, h = w - w % 2, h - h % 2
+    return {"out": str(writer.out), "frames": len(times), "format": fmt, "panels": len(panels), "size": (w, h)}
 
 
 def plot_result(path, out_dir, *, solution: int = 0, solutions: str | None = "all",

@@ -18,16 +18,15 @@ from __future__ import annotations
 
 import fcntl
 import io
-import json
 import math
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .._atomic import atomic_bytes, atomic_json
 from ..errors import InputValueError
 from ..hand.mjcf import hand_to_mjcf
 from ..result import FORMAT_VERSION
@@ -41,23 +40,8 @@ MAX_CONTACTS = 32
 """K, the most hand contacts written per frame."""
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _atomic_json(path: Path, obj: dict) -> None:
-    _atomic_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
+_atomic_bytes = atomic_bytes
+_atomic_json = atomic_json
 
 
 def solution_arrays(result: SynthesisResult, index: int) -> dict:

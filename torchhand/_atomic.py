@@ -1,0 +1,38 @@
+"""Atomic file writes: a temporary file in the target's folder, flushed and moved into place with ``os.replace``,
+so a reader sees the old file or the new one, never a torn one, and an error leaves nothing behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+__all__ = ["atomic_bytes", "atomic_json", "atomic_text"]
+
+
+def atomic_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (parent folders are created)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_text(path: Path, text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    atomic_bytes(path, text.encode("utf-8"))
+
+
+def atomic_json(path: Path, obj: dict) -> None:
+    """Write ``obj`` as indented JSON to ``path`` atomically."""
+    atomic_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
