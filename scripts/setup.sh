@@ -27,5 +27,13 @@ if ! "$PY" -c "import torch, sys; v=tuple(int(x) for x in torch.__version__.spli
   "$PY" -m pip install -q "torch==2.13.0"
 fi
 "$PY" -m pip install -q -e ".[test]"
+# Optional: Blender as a Python module (about 370 MB download, 800 MB installed), used only by the tests that import
+# written BVH files with Blender's own importer. Not fatal: without it those tests are skipped.
+# SETUP_BLENDER=0 skips this step.
+if [ "${SETUP_BLENDER:-1}" != 0 ]; then
+  "$PY" -m pip install -q -e ".[blender]" >/dev/null 2>&1 || true
+  "$PY" -c "import bpy" >/dev/null 2>&1 \
+    || echo "setup: optional bpy (Blender 4.5, Python 3.11 only) not installed; the Blender tests will be skipped"
+fi
 command -v pyenv >/dev/null 2>&1 && pyenv rehash || true
 "$PY" -c "import torchhand, torchhand.kernels; print('setup: torchhand', torchhand.__version__, 'ready')"

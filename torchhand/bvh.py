@@ -1,4 +1,4 @@
-"""A robust reader for Biovision Hierarchy (BVH) motion files.
+"""Biovision Hierarchy (BVH) motion files: a robust reader, an atomic writer and the Euler-angle conversions.
 
 Format
     ``HIERARCHY`` then one or more ``ROOT name { OFFSET x y z  CHANNELS n ch1 .. chn  JOINT ... / End Site {...} }``
@@ -7,45 +7,70 @@ Format
     case and any whitespace layout (braces may share a line with other tokens).
 
 Kinematics (what :meth:`BVHClip.global_transforms` computes)
-    The local transform of a joint is ``Translate(OFFSET + position channels) @ R``, with
-    ``R = R(ch1) @ R(ch2) @ R(ch3)`` for its rotation channels *in the order they are listed* (intrinsic
-    rotations; e.g. ``Yrotation Xrotation Zrotation`` gives ``Ry @ Rx @ Rz``). Angles are degrees in the file and
-    radians in every tensor this module returns. Position channels add to the offset (this matches rigs whose
-    non-root joints carry zero-valued position channels, such as the Leap Motion exports; for a root with zero
-    offset it is the usual "absolute root position"). The global transform is ``parent_global @ local``;
-    transforms are 4x4, column-vector convention (``p_parent = T_parent_joint @ p_joint``), in the file's units
-    and axes (no unit or up-axis conversion happens here: see :mod:`torchhand.mocap`).
+    The local transform of a joint is ``Translate(t) @ R``, with ``R = R(ch1) @ R(ch2) @ R(ch3)`` for its rotation
+    channels *in the order they are listed* (intrinsic rotations; e.g. ``Yrotation Xrotation Zrotation`` gives
+    ``Ry @ Rx @ Rz``). Angles are degrees in the file and radians in every tensor this module returns. ``t`` is
+    the joint's OFFSET, except that a position channel REPLACES that axis of the OFFSET (``Xposition`` sets
+    ``t[0]``, and so on), for every joint, the root included. This is the usual BVH convention and Blender's
+    importer's: for a root it is the "absolute root position", and the rigs whose non-root joints carry position
+    channels (the CMU body in ``cmu_body_frozen_hands``, the Leap Motion exports) write those channels equal to the
+    OFFSET. The rest pose (:meth:`BVHClip.rest_transforms`) has every rotation zero and every position channel at
+    its OFFSET. The global transform is ``parent_global @ local``; transforms are 4x4, column-vector convention
+    (``p_parent = T_parent_joint @ p_joint``), in the file's units and axes (no unit or up-axis conversion happens
+    here: see :mod:`torchhand.mocap`).
 
 End Sites
     Each ``End Site`` becomes a joint without channels named ``<parent>_end`` (``is_end_site`` True), so
     fingertip positions are available from :meth:`BVHClip.global_transforms` like any other joint.
+    :func:`write_bvh` writes them back as ``End Site`` blocks (their names are not written).
 
 Tolerated quirk
-    Some exporters (the Leap Motion gestures in ``leap_hand_bvh``) write one more motion line than ``Frames:``
-    says. Exactly one extra line is dropped (``BVHClip.extra_lines_dropped == 1``); any other mismatch between
-    ``Frames:`` and the number of motion lines is a :class:`~torchhand.errors.FileFormatError`. Blank lines are
-    ignored everywhere.
+    Some exporters write one more motion line than ``Frames:`` says. Exactly one extra line is dropped
+    (``BVHClip.extra_lines_dropped == 1``): the FIRST line when it is all zeros (the Leap Motion gestures in
+    ``leap_hand_bvh`` start with an all-zero rest row and end with real data), otherwise the LAST line;
+    ``BVHClip.extra_line_dropped_at`` says which (``"first"``, ``"last"``, or None when none was dropped). Any
+    other mismatch between ``Frames:`` and the number of motion lines is a
+    :class:`~torchhand.errors.FileFormatError`. Blank lines are ignored everywhere.
+
+Writing (:func:`write_bvh`)
+    The clip's hierarchy (several ROOTs allowed), names, offsets, channel names and orders as they are, End Sites
+    restored, ``Frames:`` equal to the number of motion lines, ``Frame Time:`` and offsets in the shortest decimal
+    that reads back to the same float (at least 8 significant digits for the frame time), motion values with
+    ``%.{precision}f``. One keyword per line, tab-indented, so line-based readers (Blender's) accept it. The file
+    is written to a temporary file in the target folder and moved into place; on error nothing is left behind.
+
+Euler angles
+    :func:`euler_to_matrix`, :func:`matrix_to_euler` and :func:`unwrap_euler` use the BVH convention above:
+    intrinsic rotations in the order of the letters, radians, for the six orders with three different axes (XYZ,
+    XZY, YXZ, YZX, ZXY, ZYX). SciPy's ``Rotation.from_euler`` with the same upper-case order is the same
+    rotation. Every Euler triple ``(a, b, c)`` has the twin ``(a + pi, pi - b, c + pi)`` and each angle may be
+    shifted by ``2 pi``; :func:`matrix_to_euler` returns ``b`` in ``[-pi/2, pi/2]`` and ``a, c`` in ``(-pi, pi]``
+    unless a ``reference`` picks the equivalent triple nearest to it.
 
 Errors
     A missing file raises :class:`~torchhand.errors.MissingFileError`; anything malformed (missing
     ``HIERARCHY``/``MOTION``, unknown channel names, wrong channel counts, unbalanced braces, non-numeric or
     non-finite values, a frame count mismatch) raises :class:`~torchhand.errors.FileFormatError` with
-    ``path:line:`` in the message.
+    ``path:line:`` in the message. Bad input to the writer and the conversions raises a one-line
+    :class:`~torchhand.errors.TorchhandError` subclass naming the argument.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .errors import FileFormatError, InputValueError, MissingFileError, UnknownNameError
+from ._atomic import atomic_text
+from .errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
+                     UnknownNameError)
 
-__all__ = ["BVHClip", "read_bvh", "euler_to_matrix", "CHANNEL_NAMES"]
+__all__ = ["BVHClip", "read_bvh", "write_bvh", "euler_to_matrix", "matrix_to_euler", "unwrap_euler",
+           "CHANNEL_NAMES"]
 
 CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 """The six BVH channel names (matched case-insensitively, stored in this spelling)."""
@@ -66,7 +91,9 @@ class BVHClip:
         is_end_site: whether each joint is an End Site, tuple of J bool
         frame_time: seconds per frame, float
         motion: channel values, (F, C), float64; positions in file units, rotations in degrees
-        extra_lines_dropped: motion lines beyond ``Frames:`` that were dropped (0, or 1 for the Leap quirk)
+        extra_lines_dropped: motion lines beyond ``Frames:`` that were dropped (0, or 1 for the tolerated quirk)
+        extra_line_dropped_at: which motion line was dropped: ``"first"`` (an all-zero leading row, the Leap
+            gestures), ``"last"``, or None when ``extra_lines_dropped`` is 0
     """
 
     path: str
@@ -78,6 +105,7 @@ class BVHClip:
     frame_time: float
     motion: np.ndarray
     extra_lines_dropped: int = 0
+    extra_line_dropped_at: str | None = None
 
     @property
     def num_frames(self) -> int:
@@ -117,8 +145,43 @@ class BVHClip:
         return [i for i, p in enumerate(self.parents) if p == j]
 
     def rest_transforms(self) -> torch.Tensor:
-        """Global transforms with every channel zero (the rest pose), (J, 4, 4), file units, float64."""
-        return self._global(np.zeros((1, self.motion.shape[1]), dtype=np.float64))[0]
+        """Global transforms of the rest pose (every rotation zero, every position channel at its OFFSET, so each
+        joint sits at its OFFSET from its parent), (J, 4, 4), file units, float64."""
+        rest = np.zeros((1, self.motion.shape[1]), dtype=np.float64)
+        for j, (start, chans) in enumerate(zip(self.channel_start, self.channels)):
+            for i, ch in enumerate(chans):
+                if ch.endswith("position"):
+                    rest[0, start + i] = self.offsets[j, "XYZ".index(ch[0])]
+        return self._global(rest)[0]
+
+    def with_motion(self, motion, *, frame_time: float | None = None) -> "BVHClip":
+        """A copy of this clip with other channel values (the hierarchy unchanged).
+
+        Args:
+            motion: channel values in this clip's column order, (F', C), positions in file units, rotations in
+                degrees; array or tensor, stored as a read-only float64 array
+            frame_time: seconds per frame of the new motion; None keeps this clip's
+
+        Returns:
+            the new :class:`BVHClip` (``extra_lines_dropped`` 0: the motion does not come from a file)
+
+        Raises:
+            ShapeError: ``motion`` is not (F', C) with F' >= 1.
+            InputValueError: non-finite values, or a ``frame_time`` that is not positive and finite.
+        """
+        m = motion.detach().cpu().numpy() if isinstance(motion, torch.Tensor) else motion
+        m = np.array(m, dtype=np.float64, copy=True)
+        C = self.motion.shape[1]
+        if m.ndim != 2 or m.shape[1] != C or m.shape[0] < 1:
+            raise ShapeError(f"motion: expected shape (F, {C}) with F >= 1 for {self.path}, got {tuple(m.shape)}")
+        if not np.isfinite(m).all():
+            f, c = (int(v[0]) for v in np.nonzero(~np.isfinite(m)))
+            raise InputValueError(f"motion: non-finite value at frame {f}, column {c}")
+        ft = self.frame_time if frame_time is None else float(frame_time)
+        if not (math.isfinite(ft) and ft > 0):
+            raise InputValueError(f"frame_time: expected a positive number of seconds, got {frame_time}")
+        m.setflags(write=False)
+        return replace(self, motion=m, frame_time=ft, extra_lines_dropped=0, extra_line_dropped_at=None)
 
     def local_transforms(self, frames=None) -> torch.Tensor:
         """Local transforms ``T_parent_joint``, (F', J, 4, 4), file units, float64.
@@ -157,7 +220,7 @@ class BVHClip:
             for i, ch in enumerate(chans):
                 axis = "XYZ".index(ch[0])
                 if ch.endswith("position"):
-                    out[:, j, axis, 3] += motion[:, start + i]
+                    out[:, j, axis, 3] = motion[:, start + i]        # replaces that axis of the OFFSET
                     continue
                 Rk = _axis_rotation_np(cos[:, k], sin[:, k], axis)
                 k += 1
@@ -196,6 +259,117 @@ def euler_to_matrix(angles: torch.Tensor, order: str) -> torch.Tensor:
     for k in (1, 2):
         R = R @ _axis_rotation(angles[..., k], "XYZ".index(order[k]))
     return R
+
+
+def matrix_to_euler(R: torch.Tensor, order: str, *, reference: torch.Tensor | None = None) -> torch.Tensor:
+    """Intrinsic Euler angles of rotation matrices, the inverse of :func:`euler_to_matrix`.
+
+    Args:
+        R: rotation matrices, (..., 3, 3), float32 or float64 (not checked for orthonormality)
+        order: three different axis letters, e.g. ``"ZXY"``: ``R = Rz(a0) @ Rx(a1) @ Ry(a2)`` (BVH channel order)
+        reference: optional angles to stay close to, (..., 3) like the output, radians; of the two Euler
+            solutions and their ``2 pi`` shifts per angle the one nearest to it (sum of squares) is returned, and
+            at gimbal lock the first angle is taken from it
+
+    Returns:
+        angles: (..., 3), radians, dtype and device of ``R``, with ``euler_to_matrix(angles, order) == R``.
+        Without ``reference``: middle angle in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``; at gimbal lock
+        (middle angle +-pi/2, where only the sum or difference of the others is defined) the first angle is 0.
+
+    Raises:
+        InputValueError: ``order`` is not three different letters from X, Y, Z.
+        InputTypeError: ``R`` is not a floating-point tensor.
+        ShapeError: ``R`` is not (..., 3, 3) or ``reference`` does not have the output's shape.
+    """
+    i, j, k = _tait_bryan_axes(order)
+    if not isinstance(R, torch.Tensor) or not R.is_floating_point():
+        raise InputTypeError(f"R: expected a floating-point tensor, got {getattr(R, 'dtype', type(R).__name__)}")
+    if R.ndim < 2 or R.shape[-2:] != (3, 3):
+        raise ShapeError(f"R: expected shape (..., 3, 3), got {tuple(R.shape)}")
+    out_shape = tuple(R.shape[:-2]) + (3,)
+    ref = None if reference is None else torch.as_tensor(reference, dtype=R.dtype, device=R.device)
+    if ref is not None and tuple(ref.shape) != out_shape:
+        raise ShapeError(f"reference: expected shape {out_shape} (the output's), got {tuple(ref.shape)}")
+    e = 1.0 if (j - i) % 3 == 1 else -1.0                      # +1 for the cyclic orders XYZ, YZX, ZXY
+    # column k of R is (e sin b, -e sin a cos b, cos a cos b) on axes (i, j, k): the first angle, taking cos b >= 0
+    y, x = -e * R[..., j, k], R[..., k, k]
+    a = torch.atan2(y, x)
+    lock = torch.hypot(y, x) <= 4 * torch.finfo(R.dtype).eps   # cos b == 0: only a +- c is defined
+    a = torch.where(lock, torch.zeros_like(a) if ref is None else ref[..., 0], a)
+    # M = Ri(a)^T R = Rj(b) Rk(c): its column k is (e sin b, 0, cos b), its row j is (e sin c, cos c, 0)
+    M = _axis_rotation(a, i).transpose(-1, -2) @ R
+    b = torch.atan2(e * M[..., i, k], M[..., k, k])
+    c = torch.atan2(e * M[..., j, i], M[..., j, j])
+    angles = torch.stack([a, b, c], dim=-1)
+    return angles if ref is None else _nearest_equivalent(angles, ref)
+
+
+def unwrap_euler(angles: torch.Tensor, order: str) -> torch.Tensor:
+    """Make a sequence of Euler angles continuous: each frame becomes the equivalent triple (of the two Euler
+    solutions and their ``2 pi`` shifts per angle) nearest to the previous frame's result; the first frame is
+    kept. The rotations are unchanged.
+
+    Args:
+        angles: Euler angles per frame, (F, 3), radians, in the intrinsic ``order`` (three different axes)
+        order: e.g. ``"YXZ"``
+
+    Returns:
+        (F, 3), radians, dtype and device of ``angles``
+
+    Raises:
+        InputValueError: ``order`` is not three different letters from X, Y, Z.
+        ShapeError: ``angles`` is not (F, 3).
+    """
+    _tait_bryan_axes(order)
+    if angles.ndim != 2 or angles.shape[-1] != 3:
+        raise ShapeError(f"angles: expected shape (F, 3), got {tuple(angles.shape)}")
+    if angles.shape[0] < 2:
+        return angles.clone()
+    two = torch.stack([angles, _twin(angles)])                        # (2, F, 3): solution 0 and its twin
+    # transition per frame: the solution nearest (modulo 2 pi) to each solution of the previous frame
+    d = _wrap(two[None, :, 1:] - two[:, None, :-1]).square().sum(-1)  # (prev 2, cur 2, F-1)
+    nxt = (d[:, 1] < d[:, 0]).long()                                  # (2, F-1): chosen solution given prev
+    const = nxt[0] == nxt[1]
+    swap = (nxt[0] == 1) & (nxt[1] == 0)
+    F = angles.shape[0]
+    idx = torch.arange(F, device=angles.device)
+    is_const = torch.cat([torch.ones(1, dtype=torch.bool, device=angles.device), const])
+    value = torch.cat([torch.zeros(1, dtype=torch.long, device=angles.device), nxt[0]])
+    last_const = torch.cummax(torch.where(is_const, idx, torch.zeros_like(idx)), 0).values
+    swaps = torch.cumsum(torch.cat([torch.zeros(1, dtype=torch.long, device=angles.device), swap.long()]), 0)
+    state = (value[last_const] + swaps - swaps[last_const]) % 2       # (F,) 0 or 1 per frame
+    chosen = torch.where(state[:, None] == 1, two[1], two[0])
+    # whole turns added to each frame, counted in integers so that nothing accumulates rounding error
+    turns = torch.round((chosen[:-1] - chosen[1:]) / (2 * math.pi))
+    turns = torch.cat([torch.zeros_like(turns[:1]), torch.cumsum(turns, 0)])
+    return chosen + (2 * math.pi) * turns
+
+
+def _tait_bryan_axes(order: str) -> tuple[int, int, int]:
+    """Axis indices of an order with three different letters; InputValueError otherwise."""
+    up = order.upper() if isinstance(order, str) else ""
+    if len(up) != 3 or set(up) != set("XYZ"):
+        raise InputValueError(f"order: expected three different letters from X, Y, Z (e.g. 'ZXY'), got '{order}'")
+    return "XYZ".index(up[0]), "XYZ".index(up[1]), "XYZ".index(up[2])
+
+
+def _twin(angles: torch.Tensor) -> torch.Tensor:
+    """The other Euler solution of the same rotation, ``(a + pi, pi - b, c + pi)``, (..., 3), radians."""
+    a, b, c = angles.unbind(-1)
+    return torch.stack([a + math.pi, math.pi - b, c + math.pi], dim=-1)
+
+
+def _wrap(x: torch.Tensor) -> torch.Tensor:
+    """Angles wrapped to [-pi, pi)."""
+    return torch.remainder(x + math.pi, 2 * math.pi) - math.pi
+
+
+def _nearest_equivalent(angles: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
+    """Of ``angles``, its twin and their 2 pi shifts per angle, the triple nearest to ``ref``, (..., 3)."""
+    best = [ref + _wrap(cand - ref) for cand in (angles, _twin(angles))]
+    d0 = (best[0] - ref).square().sum(-1, keepdim=True)
+    d1 = (best[1] - ref).square().sum(-1, keepdim=True)
+    return torch.where(d1 < d0, best[1], best[0])
 
 
 def _axis_rotation(angle: torch.Tensor, axis: int) -> torch.Tensor:
@@ -373,9 +547,12 @@ def read_bvh(path: str | os.PathLike) -> BVHClip:
     frames, frame_time, data_start = _parse_motion_header(name, lines, motion_at)
     num_channels = sum(len(c) for c in channels)
     rows = [i for i in range(data_start, len(lines)) if lines[i].strip()]
-    extra = 0
+    extra, dropped_at = 0, None
     if len(rows) == frames + 1:
-        rows, extra = rows[:-1], 1
+        if _all_zero(lines[rows[0]]):
+            rows, extra, dropped_at = rows[1:], 1, "first"
+        else:
+            rows, extra, dropped_at = rows[:-1], 1, "last"
     elif len(rows) != frames:
         at = rows[frames + 1] + 1 if len(rows) > frames + 1 else len(lines)
         raise FileFormatError(
@@ -402,7 +579,7 @@ def read_bvh(path: str | os.PathLike) -> BVHClip:
     motion.setflags(write=False)
     return BVHClip(path=name, names=tuple(names), parents=tuple(parents), offsets=offs,
                    channels=tuple(channels), is_end_site=tuple(end_site), frame_time=frame_time,
-                   motion=motion, extra_lines_dropped=extra)
+                   motion=motion, extra_lines_dropped=extra, extra_line_dropped_at=dropped_at)
 
 
 def _parse_motion_header(name: str, lines: list[str], motion_at: int) -> tuple[int, float, int]:
@@ -429,9 +606,144 @@ def _parse_motion_header(name: str, lines: list[str], motion_at: int) -> tuple[i
     return frames, frame_time, i_time + 1
 
 
+def _all_zero(line: str) -> bool:
+    """Whether a motion line holds only numbers equal to zero."""
+    try:
+        return all(float(v) == 0.0 for v in line.split())
+    except ValueError:
+        return False
+
+
 def _is_float(s: str) -> bool:
     try:
         float(s)
     except ValueError:
         return False
     return True
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# writing
+
+
+def write_bvh(clip: BVHClip, path: str | os.PathLike, *, precision: int = 6) -> Path:
+    """Write a clip as a BVH file, atomically (see the module docstring for the layout).
+
+    Joints are written depth-first from each root in turn, children in index order (the order :func:`read_bvh`
+    gives, so read -> write -> read keeps every field); ``End Site`` joints become ``End Site`` blocks.
+
+    Args:
+        clip: the clip; ``motion`` (F, C) in its column order, positions in file units, rotations in degrees
+        path: the file to write; its folder must exist; an existing file is replaced
+        precision: decimals of the motion values (``%.{precision}f``), 0..17
+
+    Returns:
+        the path written.
+
+    Raises:
+        InputTypeError: ``clip`` is not a :class:`BVHClip`, or ``precision`` is not an int.
+        ShapeError: ``motion`` or ``offsets`` do not match the hierarchy.
+        InputValueError: non-finite values, a bad frame time, a hierarchy that cannot be written (a name with
+            whitespace, braces or nothing in it, a parent after its child, an End Site with channels or
+            children, an unknown channel), ``precision`` out of range, or ``path`` is a folder.
+        MissingFileError: the folder of ``path`` does not exist.
+    """
+    if not isinstance(clip, BVHClip):
+        raise InputTypeError(f"clip: expected a BVHClip, got {type(clip).__name__}")
+    if isinstance(precision, bool) or not isinstance(precision, int):
+        raise InputTypeError(f"precision: expected an int, got {type(precision).__name__}")
+    if not 0 <= precision <= 17:
+        raise InputValueError(f"precision: expected 0..17 decimals, got {precision}")
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise MissingFileError(f"path: folder '{p.parent}' does not exist")
+    if p.is_dir():
+        raise InputValueError(f"path: '{p}' is a folder, expected a file name")
+    order, columns = _write_order(clip)
+    motion = np.asarray(clip.motion, dtype=np.float64)
+    if not np.isfinite(motion).all():
+        f, c = (int(v[0]) for v in np.nonzero(~np.isfinite(motion)))
+        raise InputValueError(f"clip.motion: non-finite value at frame {f}, column {c}")
+    if not np.isfinite(clip.offsets).all():
+        bad = clip.names[int(np.nonzero(~np.isfinite(clip.offsets).all(axis=1))[0][0])]
+        raise InputValueError(f"clip.offsets: non-finite OFFSET of joint '{bad}'")
+    ft = float(clip.frame_time)
+    if not (math.isfinite(ft) and ft > 0):
+        raise InputValueError(f"clip.frame_time: expected a positive number of seconds, got {clip.frame_time}")
+
+    out = ["HIERARCHY"]
+    open_joints: list[int] = []                         # the chain from a root to the joint written last
+    for j in order + [-1]:                              # -1 closes everything at the end
+        parent = clip.parents[j] if j >= 0 else -1
+        while open_joints and open_joints[-1] != parent:
+            open_joints.pop()
+            out.append("\t" * len(open_joints) + "}")
+        if j < 0:
+            break
+        tab = "\t" * len(open_joints)
+        if clip.is_end_site[j]:
+            out.append(f"{tab}End Site")
+        else:
+            out.append(f"{tab}{'JOINT' if clip.parents[j] >= 0 else 'ROOT'} {clip.names[j]}")
+        out.append(f"{tab}{{")
+        out.append(f"{tab}\tOFFSET " + " ".join(_exact(v) for v in clip.offsets[j]))
+        if not clip.is_end_site[j]:
+            out.append(f"{tab}\tCHANNELS {len(clip.channels[j])}" + "".join(f" {c}" for c in clip.channels[j]))
+        open_joints.append(j)
+    unit = 0.5 * 10.0 ** -precision
+    values = np.where(np.abs(motion[:, columns]) < unit, 0.0, motion[:, columns])   # no "-0.000000"
+    row = " ".join([f"%.{precision}f"] * values.shape[1])
+    out += ["MOTION", f"Frames: {values.shape[0]}", f"Frame Time: {_frame_time_text(ft)}"]
+    out += [row % tuple(r) for r in values.tolist()]
+    atomic_text(p, "\n".join(out) + "\n")
+    return p
+
+
+def _write_order(clip: BVHClip) -> tuple[list[int], list[int]]:
+    """Depth-first joint order and the matching motion columns; InputValueError/ShapeError for a hierarchy that
+    cannot be written."""
+    J = len(clip.names)
+    if not (len(clip.parents) == len(clip.channels) == len(clip.is_end_site) == J):
+        raise ShapeError(f"clip: names, parents, channels and is_end_site must have one entry per joint, got "
+                         f"{J}, {len(clip.parents)}, {len(clip.channels)}, {len(clip.is_end_site)}")
+    if np.shape(clip.offsets) != (J, 3):
+        raise ShapeError(f"clip.offsets: expected shape ({J}, 3), got {np.shape(clip.offsets)}")
+    children: list[list[int]] = [[] for _ in range(J)]
+    for j, (name, parent, chans, end) in enumerate(zip(clip.names, clip.parents, clip.channels, clip.is_end_site)):
+        if not parent < j:
+            raise InputValueError(f"clip.parents: joint '{name}' has parent index {parent}, expected -1 or < {j}")
+        if not end and (not name or any(ch.isspace() or ch in "{}" for ch in name)):
+            raise InputValueError(f"clip.names: joint name '{name}' is empty or holds whitespace or braces")
+        if end and (chans or parent < 0):
+            raise InputValueError(f"clip.is_end_site: End Site '{name}' must have a parent and no channels")
+        if parent >= 0:
+            if clip.is_end_site[parent]:
+                raise InputValueError(f"clip.is_end_site: End Site '{clip.names[parent]}' cannot have children")
+            children[parent].append(j)
+        bad = [c for c in chans if c not in CHANNEL_NAMES]
+        if bad or len(set(chans)) != len(chans):
+            raise InputValueError(f"clip.channels: joint '{name}' has channels {' '.join(chans)}; expected "
+                                  f"distinct names from {', '.join(CHANNEL_NAMES)}")
+    C = sum(len(c) for c in clip.channels)
+    if np.ndim(clip.motion) != 2 or np.shape(clip.motion)[1] != C or np.shape(clip.motion)[0] < 1:
+        raise ShapeError(f"clip.motion: expected shape (F, {C}) with F >= 1 (the channels of the hierarchy), "
+                         f"got {np.shape(clip.motion)}")
+    order: list[int] = []
+    stack = [j for j in reversed(range(J)) if clip.parents[j] < 0]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(children[j]))
+    start = clip.channel_start
+    columns = [start[j] + i for j in order for i in range(len(clip.channels[j]))]
+    return order, columns
+
+
+def _exact(x: float) -> str:
+    """The shortest positional decimal that reads back as the same float (no exponent; -0 written as 0)."""
+    return np.format_float_positional(float(x) + 0.0, unique=True, trim="-")
+
+
+def _frame_time_text(ft: float) -> str:
+    """Frame time: the shortest exact decimal, padded to at least 8 significant digits."""
+    return np.format_float_positional(ft, unique=True, fractional=False, min_digits=8)
