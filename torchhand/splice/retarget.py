@@ -1,0 +1,486 @@
+"""Carrying finger rotations from one rig to another, and giving a finger-less body the hand rig's fingers.
+
+Rule (:func:`retarget_fingers`)
+    In a BVH every joint's frame is aligned with the file's axes in the rest pose (every channel zero), so a
+    joint's local channel rotation ``L`` (``R(ch1) @ R(ch2) @ R(ch3)``, :mod:`torchhand.bvh`) is its rotation away
+    from rest, expressed in the rest axes. It is re-expressed in each rig's canonical hand frame at rest,
+    ``H`` (columns: hand axes x, y, z in the file's rest coordinates, :func:`hand_frame`):
+    ``Δ = Hsᵀ Ls Hs`` and ``Lt = Ht Δ Htᵀ`` on the destination joint with the same (finger, ordinal)
+    (:mod:`torchhand.splice.rigs` for ordinals). A left-handed file (ManipNet) is mirrored first
+    (``M L M``, ``M = diag(-1, 1, 1)``, its rest positions too) and a left-handed destination is mirrored back.
+    In one step: ``Lt = A Ls Aᵀ`` with ``A = Mt Ht Hsᵀ Ms``.
+
+    Chains that differ: for each destination joint with a role the source also has, the source path is every
+    joint from the previous role both rigs share (or the wrist) down to that role's joint. When the destination
+    path between the same two roles has as many joints, they are paired one to one (ManipNet onto ManipNet:
+    ``THUMB_CMC_FE`` and ``THUMB_CMC_AA`` each onto itself); otherwise the source path's rotations are composed
+    (``L_a @ L_b``, parent first) onto the destination role's joint. So a source metacarpal (MB-Lab ``index00``)
+    is carried into the destination's proximal joint when the destination has none, and ManipNet's two CMC
+    joints become one CMC rotation on a three-joint thumb. Destination joints without a source counterpart (a
+    metacarpal the source lacks, ``THUMB_CMC_FE`` when the source has one CMC joint, tip joints) are left out of
+    the result and keep the destination's values; when those values are not the rest pose they add to the
+    carried rotation.
+
+    ``include_wrist``: the wrist's rotation relative to its forearm joint is carried the same way (both rigs
+    need a forearm joint, and both rest poses are taken to hold the hand in line with the forearm).
+
+    What is preserved: the rotation of every carried joint relative to the hand, in the hand frame, equals the
+    source's (up to the destination's unmatched joints). Segment directions then agree up to each rig's rest
+    difference: the angle between corresponding segments in the posed hands equals their angle at rest. Rigs
+    whose rest poses differ a lot keep that difference: ManipNet's rest thumb points back toward the wrist, 161
+    and 139 degrees away from the Mixamo and CMU rest thumbs, so its carried thumb is folded on those rigs.
+
+Rest alignment (``align_rest=True``, an option; the rule above is the default)
+    Per carried joint d, ``C_d`` is the smallest rotation (hand coordinates) taking d's rest segment direction
+    (toward the next carried joint of its finger, or its tip) onto the source's; ``Lt = Ht C_pᵀ Δ C_d Htᵀ``, p the
+    carried joint above d (``C_p = I`` at the wrist; a segment without length in either rig keeps ``C_p``). Then
+    every posed segment points where the source's does, relative to the hand frame, while twist about the segment
+    follows the minimal rotation. Identical rigs get ``C = I``, i.e. the default rule.
+
+Insertion (:func:`insert_fingers`)
+    A body without finger joints gets the hand rig's finger subtree under its wrist: every joint and End Site
+    of the wrist's child chains that hold fingers, with the joints' rotation channels (position channels are
+    dropped) and zero motion (the rest pose; the caller fills the rotations). Offsets are rotated from the hand
+    rig's rest hand frame into the body's (``Mb Hb Hhᵀ Mh``, handedness included) and scaled so that the wrist
+    to middle-fingertip length (to the middle finger's End Site, or its last joint) equals
+    ``HAND_LENGTH * forearm / FOREARM_LENGTH`` = 0.19 m x (the body's forearm length / 0.26 m), which also
+    converts the hand's units into the body's. The body, having no fingers, gets its hand frame from the fallback
+    rule of :func:`torchhand.mocap.hand_frame_rotation` (x from the wrist to its child or End Site, the back of
+    the hand up for a horizontal arm, outward for a hanging one), so the inserted hand continues the forearm.
+
+    Hierarchy order: the new joints follow the wrist's existing subtree (after its End Site, which stays), so
+    joint indices remain a depth-first order, parents precede children, and ``motion``'s columns follow the
+    joints in index order as :attr:`BVHClip.channel_start` assumes. Joints after the insertion point shift by the
+    number of new joints; ``column_map[c]`` is the new column of the body's column ``c``. Names: the hand's names,
+    prefixed ``R_``/``L_`` when they carry no side (ManipNet), with ``_hand`` appended on a clash with a body name.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from ..bvh import BVHClip
+from ..errors import InputTypeError, InputValueError, ShapeError
+from .rigs import FINGERS, SIDES, Arm, Rig, _name_side, rest_positions
+
+__all__ = ["Match", "Retargeted", "Inserted", "HAND_LENGTH", "FOREARM_LENGTH", "hand_frame", "finger_matches",
+           "retarget_fingers", "insert_fingers"]
+
+HAND_LENGTH = 0.19
+"""Wrist to middle-fingertip length of the reference hand, metres."""
+FOREARM_LENGTH = 0.26
+"""Elbow to wrist length of the reference forearm, metres (the inserted hand is scaled by forearm / this)."""
+
+_MIRROR = np.diag([-1.0, 1.0, 1.0])
+
+
+class Match(NamedTuple):
+    """One carried joint: finger ("thumb".."pinky", or "wrist" with ordinal 0), ordinal, source joint name
+    (names joined by "+" when a path is composed), destination joint name."""
+
+    finger: str
+    ordinal: int
+    src: str
+    dst: str
+
+
+class Retargeted(NamedTuple):
+    """What :func:`retarget_fingers` returns.
+
+    rotations: destination joint index -> local rotations, (F, 3, 3), dtype and device of the input
+    matches: the carried joints, in destination hierarchy order
+    """
+
+    rotations: dict[int, torch.Tensor]
+    matches: list[Match]
+
+
+class Inserted(NamedTuple):
+    """What :func:`insert_fingers` returns.
+
+    clip: the body with the finger joints added (new columns zero)
+    rig: the body's rig with that side's fingers, indices into ``clip``
+    column_map: new column of each of the body's columns, (C_old,) int64
+    """
+
+    clip: BVHClip
+    rig: Rig
+    column_map: np.ndarray
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# hand frame
+
+
+def hand_frame(clip: BVHClip, rig: Rig, side: str, *, handedness: str = "right", up_axis: str | None = None
+               ) -> np.ndarray:
+    """The canonical hand frame at rest, (3, 3): columns x, y, z in the file's rest coordinates (mirrored for a
+    left-handed file).
+
+    With fingers: x = wrist -> middle knuckle (the (middle, 1) joint; other knuckles when it is missing),
+    y = pinky knuckle -> index knuckle made orthogonal to x for a right hand, its opposite for a left hand,
+    z = x × y (the back of the hand; the palm faces -z), as :func:`torchhand.mocap.hand_frame_rotation` but from
+    the recognised knuckles. Without fingers: that function's fallback (x toward the wrist's child or End Site,
+    z up for a horizontal arm, away from the root for a hanging one; ``up_axis`` "y"/"z", guessed as the axis
+    along which the trunk lies above the root when None).
+    """
+    _check_choice(handedness, "handedness", SIDES)
+    arm = rig.arm(side)
+    rest = rest_positions(clip, handedness)
+    w = rest[arm.wrist]
+    fingers = rig.fingers.get(side, {})
+    knuckle = {f: next((fingers[(f, o)] for o in (1, 2, 0) if (f, o) in fingers), None) for f in FINGERS}
+    ahead = [knuckle[f] for f in ("middle", "index", "ring") if knuckle[f] is not None]
+    across = [(a, b) for a in ("index", "middle") for b in ("pinky", "ring")
+              if a != b and knuckle[a] is not None and knuckle[b] is not None]
+    if ahead and across:
+        x = _unit(rest[ahead[0]] - w)
+        t = rest[knuckle[across[0][0]]] - rest[knuckle[across[0][1]]]
+        y = t - x * float(x @ t)
+        if np.linalg.norm(x) > 0 and np.linalg.norm(y) > 1e-6 * max(np.linalg.norm(t), 1e-300):
+            y = _unit(y) if side == "right" else -_unit(y)
+            return np.stack([x, y, np.cross(x, y)], axis=1)
+    return _fallback_frame(clip, arm, rest, up_axis)
+
+
+def _fallback_frame(clip: BVHClip, arm: Arm, rest: np.ndarray, up_axis: str | None) -> np.ndarray:
+    w = rest[arm.wrist]
+    kids = [k for k in range(clip.num_joints) if clip.parents[k] == arm.wrist and np.linalg.norm(rest[k] - w) > 1e-9]
+    par = clip.parents[arm.wrist]
+    if kids:
+        x = _unit(rest[kids[0]] - w)
+    elif par >= 0 and np.linalg.norm(w - rest[par]) > 1e-9:
+        x = _unit(w - rest[par])
+    else:
+        raise InputValueError(f"hand frame: cannot tell the hand's direction at '{clip.names[arm.wrist]}' in "
+                              f"{clip.path} (no finger joints, no child, End Site or parent at a distance)")
+    if up_axis is None:
+        up_axis = _guess_up(clip, arm, rest)
+    _check_choice(up_axis, "up_axis", ("y", "z"))
+    up = np.array([0.0, 1.0, 0.0]) if up_axis == "y" else np.array([0.0, 0.0, 1.0])
+    if abs(float(x @ up)) < math.cos(math.radians(30.0)):
+        z = _unit(up - x * float(x @ up))
+    else:
+        root = arm.wrist
+        while clip.parents[root] >= 0:
+            root = clip.parents[root]
+        lateral = w - rest[root]
+        lateral = lateral - up * float(up @ lateral)
+        lateral = lateral - x * float(x @ lateral)
+        if np.linalg.norm(lateral) < 1e-9:
+            raise InputValueError(f"hand frame: '{clip.names[arm.wrist]}' in {clip.path} hangs vertically on the "
+                                  "body's midline; cannot guess the palm direction")
+        z = _unit(lateral)
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def _guess_up(clip: BVHClip, arm: Arm, rest: np.ndarray) -> str:
+    if arm.trunk is None:
+        return "y"
+    root = arm.trunk
+    while clip.parents[root] >= 0:
+        root = clip.parents[root]
+    d = rest[arm.trunk] - rest[root]
+    return "z" if abs(d[2]) > abs(d[1]) else "y"
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# matching
+
+
+def _path(parents, j: int, stop: int) -> list[int] | None:
+    """Joints from ``stop`` (exclusive) down to ``j`` (inclusive), parent first; None if ``stop`` is not above."""
+    out = [j]
+    k = parents[j]
+    while k >= 0 and k != stop:
+        out.append(k)
+        k = parents[k]
+    return out[::-1] if k == stop else None
+
+
+def _plan(src_rig: Rig, dst_rig: Rig, side: str, include_wrist: bool) -> list[tuple[int, list[int], Match]]:
+    """(destination joint, source path, match) for every carried destination joint, destination order."""
+    sa, da = src_rig.arm(side), dst_rig.arm(side)
+    sf, df = src_rig.fingers.get(side, {}), dst_rig.fingers.get(side, {})
+    if not sf:
+        raise InputValueError(f"side: the source rig '{src_rig.name}' has no {side}-hand finger joints")
+    if not df:
+        raise InputValueError(f"side: the destination rig '{dst_rig.name}' has no {side}-hand finger joints; "
+                              "insert the hand rig's fingers first (insert_fingers)")
+    out = []
+    sn, dn = src_rig.names, dst_rig.names
+    if include_wrist:
+        if sa.forearm is None or da.forearm is None:
+            which = src_rig if sa.forearm is None else dst_rig
+            raise InputValueError(f"include_wrist: rig '{which.name}' has no forearm joint above its {side} wrist, "
+                                  "so its wrist rotation is not relative to a forearm")
+        out += _pair(src_rig.parents, dst_rig.parents, sa.wrist, sa.forearm, da.wrist, da.forearm, "wrist", 0, sn, dn)
+    for f in FINGERS:
+        shared = sorted(o for (ff, o) in df if ff == f and (f, o) in sf)
+        prev = -1
+        for o in shared:
+            s_stop = sa.wrist if prev < 0 else sf[(f, prev)]
+            d_stop = da.wrist if prev < 0 else df[(f, prev)]
+            out += _pair(src_rig.parents, dst_rig.parents, sf[(f, o)], s_stop, df[(f, o)], d_stop, f, o, sn, dn)
+            prev = o
+    out.sort(key=lambda t: t[0])
+    return out
+
+
+def _pair(sp, dp, s_joint, s_stop, d_joint, d_stop, finger, ordinal, sn, dn):
+    s_path = _path(sp, s_joint, s_stop) or [s_joint]
+    d_path = _path(dp, d_joint, d_stop) or [d_joint]
+    if len(s_path) == len(d_path):
+        return [(d, [s], Match(finger, ordinal, sn[s], dn[d])) for s, d in zip(s_path, d_path)]
+    return [(d_joint, s_path, Match(finger, ordinal, "+".join(sn[s] for s in s_path), dn[d_joint]))]
+
+
+def finger_matches(src_rig: Rig, dst_rig: Rig, side: str, *, include_wrist: bool = False) -> list[Match]:
+    """The joints :func:`retarget_fingers` carries (module docstring), in destination hierarchy order."""
+    return [m for _, _, m in _plan(src_rig, dst_rig, side, include_wrist)]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# retargeting
+
+
+def retarget_fingers(src_clip: BVHClip, src_rig: Rig, dst_clip: BVHClip, dst_rig: Rig, side: str,
+                     src_local: torch.Tensor, *, src_handedness: str = "right", dst_handedness: str = "right",
+                     include_wrist: bool = False, align_rest: bool = False) -> Retargeted:
+    """Carry ``side``'s finger rotations from the source rig onto the destination rig (module docstring).
+
+    Args:
+        src_clip, src_rig: the source clip (its rest pose) and its rig
+        dst_clip, dst_rig: the destination clip (its rest pose) and its rig
+        side: "right" or "left"
+        src_local: the source's local joint rotations, (F, Js, 3, 3), Js = src_clip.num_joints (file axes)
+        src_handedness, dst_handedness: "right", or "left" for a left-handed file (ManipNet)
+        include_wrist: also carry the wrist's rotation relative to its forearm joint
+        align_rest: also remove the rigs' rest-pose difference per segment (module docstring, "Rest alignment")
+
+    Returns:
+        :class:`Retargeted`: destination joint -> local rotations (F, 3, 3) in the destination's file axes, and
+        the matches
+    """
+    _check_choice(side, "side", SIDES)
+    _check_choice(src_handedness, "src_handedness", SIDES)
+    _check_choice(dst_handedness, "dst_handedness", SIDES)
+    if not isinstance(src_local, torch.Tensor):
+        raise InputTypeError(f"src_local: expected a torch.Tensor, got {type(src_local).__name__}")
+    Js = src_clip.num_joints
+    if src_local.ndim != 4 or tuple(src_local.shape[1:]) != (Js, 3, 3):
+        raise ShapeError(f"src_local: expected shape (F, {Js}, 3, 3) for {src_clip.path}, got "
+                         f"{tuple(src_local.shape)}")
+    plan = _plan(src_rig, dst_rig, side, include_wrist)
+    Hs = hand_frame(src_clip, src_rig, side, handedness=src_handedness)
+    Ht = hand_frame(dst_clip, dst_rig, side, handedness=dst_handedness)
+    Ms = _MIRROR if src_handedness == "left" else np.eye(3)
+    Mt = _MIRROR if dst_handedness == "left" else np.eye(3)
+    if align_rest:
+        C_own, C_par = _rest_alignment(plan, src_clip, src_rig, dst_clip, dst_rig, side, Hs, Ht, src_handedness,
+                                       dst_handedness)
+    else:
+        C_own = C_par = {d: np.eye(3) for d, _, _ in plan}
+    rotations = {}
+    for d, s_path, _ in plan:
+        L = src_local[:, s_path[0]]
+        for s in s_path[1:]:
+            L = L @ src_local[:, s]
+        left = src_local.new_tensor(Mt @ Ht @ C_par[d].T @ Hs.T @ Ms)
+        right = src_local.new_tensor(Ms @ Hs @ C_own[d] @ Ht.T @ Mt)
+        rotations[d] = left @ L @ right
+    return Retargeted(rotations=rotations, matches=[m for _, _, m in plan])
+
+
+def _rest_alignment(plan, src_clip, src_rig, dst_clip, dst_rig, side, Hs, Ht, src_hand, dst_hand):
+    """Per carried destination joint d: C_own[d], the minimal rotation (hand coordinates) taking d's rest
+    segment direction onto the source's, and C_par[d], the same for d's carried parent (identity at the wrist)."""
+    rs, rt = rest_positions(src_clip, src_hand) @ Hs, rest_positions(dst_clip, dst_hand) @ Ht
+    ts, tt = src_rig.tips.get(side, {}), dst_rig.tips.get(side, {})
+    C_own, C_par = {}, {}
+    for finger in FINGERS + ("wrist",):
+        entries = [(d, p[-1]) for d, p, m in plan if m.finger == finger]
+        prev = np.eye(3)
+        for n, (d, s) in enumerate(entries):
+            C_par[d] = prev
+            if finger == "wrist":
+                C_own[d] = prev
+                continue
+            if n + 1 < len(entries):
+                d_next, s_next = entries[n + 1]
+            else:
+                d_next, s_next = tt.get(finger, d), ts.get(finger, s)
+            C_own[d] = prev = _min_rotation(rt[d_next] - rt[d], rs[s_next] - rs[s], prev)
+    return C_own, C_par
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray, default: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking direction ``a`` onto ``b``, (3, 3); ``default`` when either has no length."""
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na < 1e-9 * max(nb, 1.0) or nb < 1e-9 * max(na, 1.0):
+        return default
+    a, b = a / na, b / nb
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-12:                                 # opposite: half a turn about any normal of a
+        n = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        n = n / np.linalg.norm(n)
+        return 2.0 * np.outer(n, n) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# insertion
+
+
+def insert_fingers(body_clip: BVHClip, body_rig: Rig, side: str, hand_clip: BVHClip, hand_rig: Rig, *,
+                   hand_handedness: str = "right", body_handedness: str = "right", up_axis: str | None = None
+                   ) -> Inserted:
+    """Add the hand rig's ``side`` finger subtree under the body's wrist (module docstring).
+
+    Args:
+        body_clip, body_rig: a body whose ``side`` has no finger joints (its arm needs an elbow or forearm joint)
+        side: "right" or "left"
+        hand_clip, hand_rig: the rig whose fingers are copied
+        hand_handedness, body_handedness: "right", or "left" for a left-handed file
+        up_axis: the body file's up axis for its hand frame ("y"/"z"), guessed from the trunk when None
+
+    Returns:
+        :class:`Inserted` (clip, rig, column_map)
+    """
+    _check_choice(side, "side", SIDES)
+    _check_choice(hand_handedness, "hand_handedness", SIDES)
+    _check_choice(body_handedness, "body_handedness", SIDES)
+    barm = body_rig.arm(side)
+    harm = hand_rig.arm(side)
+    if body_rig.has_fingers(side):
+        raise InputValueError(f"side: {body_clip.path} already has {side}-hand finger joints; retarget onto them")
+    if not hand_rig.has_fingers(side):
+        raise InputValueError(f"side: {hand_clip.path} has no {side}-hand finger joints to insert")
+    brest = rest_positions(body_clip, body_handedness)
+    hrest = rest_positions(hand_clip, hand_handedness)
+    elbow = barm.elbow if barm.elbow is not None else barm.forearm
+    forearm = float(np.linalg.norm(brest[barm.wrist] - brest[elbow])) if elbow is not None else 0.0
+    if forearm <= 0:
+        raise InputValueError(f"side: the {side} arm of {body_clip.path} has no elbow joint apart from its wrist "
+                              "to size the hand by")
+    tips = hand_rig.tips.get(side, {})
+    tip = tips.get("middle")
+    if tip is not None:
+        hand_len = float(np.linalg.norm(hrest[tip] - hrest[harm.wrist]))
+    else:
+        hand_len = max(float(np.linalg.norm(hrest[t] - hrest[harm.wrist])) for t in tips.values())
+    if hand_len <= 0:
+        raise InputValueError(f"hand: cannot measure the hand of {hand_clip.path} (fingertips at the wrist)")
+    scale = HAND_LENGTH / FOREARM_LENGTH * forearm / hand_len
+    Hh = hand_frame(hand_clip, hand_rig, side, handedness=hand_handedness)
+    Hb = hand_frame(body_clip, body_rig, side, handedness=body_handedness, up_axis=up_axis)
+    Mh = _MIRROR if hand_handedness == "left" else np.eye(3)
+    Mb = _MIRROR if body_handedness == "left" else np.eye(3)
+    R = Mb @ Hb @ Hh.T @ Mh
+
+    sub = _finger_subtree(hand_clip, hand_rig, side)
+    new_names = _new_names(hand_clip, [k for k in sub if not hand_clip.is_end_site[k]], side, set(body_clip.names))
+    at = max(_subtree(body_clip.parents, barm.wrist)) + 1
+    N = len(sub)
+    old = lambda i: i if i < at else i + N                       # noqa: E731
+    pos = {k: at + n for n, k in enumerate(sub)}
+
+    names, parents, offsets, channels, ends = [], [], [], [], []
+    for k in sub:
+        p = hand_clip.parents[k]
+        if hand_clip.is_end_site[k]:
+            names.append(new_names[p] + "_end")
+        else:
+            names.append(new_names[k])
+        parents.append(barm.wrist if p == harm.wrist else pos[p])
+        offsets.append(scale * (R @ hand_clip.offsets[k]))
+        channels.append(tuple(c for c in hand_clip.channels[k] if c.endswith("rotation")))
+        ends.append(hand_clip.is_end_site[k])
+    bn, bp = list(body_clip.names), list(body_clip.parents)
+    all_names = tuple(bn[:at] + names + bn[at:])
+    all_parents = tuple([old(p) if p >= 0 else -1 for p in bp[:at]] + parents
+                        + [old(p) if p >= 0 else -1 for p in bp[at:]])
+    all_offsets = np.concatenate([body_clip.offsets[:at], np.asarray(offsets).reshape(-1, 3),
+                                  body_clip.offsets[at:]])
+    all_channels = tuple(list(body_clip.channels[:at]) + channels + list(body_clip.channels[at:]))
+    all_ends = tuple(list(body_clip.is_end_site[:at]) + ends + list(body_clip.is_end_site[at:]))
+    starts = body_clip.channel_start
+    c_at = starts[at] if at < body_clip.num_joints else body_clip.motion.shape[1]
+    c_new = sum(len(c) for c in channels)
+    C = body_clip.motion.shape[1]
+    column_map = np.arange(C, dtype=np.int64)
+    column_map[c_at:] += c_new
+    motion = np.zeros((body_clip.num_frames, C + c_new), dtype=np.float64)
+    motion[:, column_map] = body_clip.motion
+    all_offsets.setflags(write=False)
+    motion.setflags(write=False)
+    column_map.setflags(write=False)
+    clip = replace(body_clip, names=all_names, parents=all_parents, offsets=all_offsets, channels=all_channels,
+                   is_end_site=all_ends, motion=motion)
+    return Inserted(clip=clip, rig=_inserted_rig(body_rig, hand_rig, side, clip, old, pos), column_map=column_map)
+
+
+def _subtree(parents, j: int) -> list[int]:
+    out = [j]
+    for k in range(j + 1, len(parents)):
+        if parents[k] in out:
+            out.append(k)
+    return out
+
+
+def _finger_subtree(clip: BVHClip, rig: Rig, side: str) -> list[int]:
+    """The wrist's child subtrees that hold the side's finger joints or tips, hierarchy order."""
+    w = rig.arms[side].wrist
+    wanted = set(rig.fingers[side].values()) | set(rig.tips.get(side, {}).values())
+    out = []
+    for c in (k for k in range(clip.num_joints) if clip.parents[k] == w):
+        sub = _subtree(clip.parents, c)
+        if wanted & set(sub):
+            out += sub
+    return sorted(out)
+
+
+def _new_names(clip: BVHClip, joints: list[int], side: str, taken: set[str]) -> dict[int, str]:
+    out = {}
+    for k in joints:
+        n = clip.names[k]
+        if _name_side(n) is None:
+            n = ("R_" if side == "right" else "L_") + n
+        while n in taken or n + "_end" in taken:
+            n += "_hand"
+        taken.add(n)
+        out[k] = n
+    return out
+
+
+def _inserted_rig(body: Rig, hand: Rig, side: str, clip: BVHClip, old, pos: dict[int, int]) -> Rig:
+    arms = {s: Arm(side=a.side, shoulder=_opt(old, a.shoulder), elbow=_opt(old, a.elbow), wrist=old(a.wrist),
+                   trunk=_opt(old, a.trunk), forearm=_opt(old, a.forearm)) for s, a in body.arms.items()}
+    fingers = {s: {k: old(j) for k, j in d.items()} for s, d in body.fingers.items()}
+    tips = {s: {k: old(j) for k, j in d.items()} for s, d in body.tips.items()}
+    fingers[side] = {k: pos[j] for k, j in hand.fingers[side].items()}
+    tips[side] = {k: pos[j] for k, j in hand.tips.get(side, {}).items() if j in pos}
+    how = dict(body.how)
+    how[f"{side} fingers"] = f"inserted from {hand.name}"
+    return Rig(name=f"{body.name}+{hand.name}", arms=arms, fingers=fingers, tips=tips, names=clip.names,
+               parents=clip.parents, is_end_site=clip.is_end_site, how=how)
+
+
+def _opt(f, j: int | None) -> int | None:
+    return None if j is None else f(j)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 0 else v
+
+
+def _check_choice(value, name: str, choices) -> None:
+    if value not in choices:
+        raise InputValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
