@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -33,7 +34,8 @@ from torchhand.splice.markers import virtual_markers
 from torchhand.splice.rigs import detect_rig
 from torchhand.splice.splice import arm_joints, clip_axes
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mocap"
+DATA = Path(os.environ.get("TORCHHAND_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data")) \
+    / "mocap"
 BODY = DATA / "bvh_python_tests" / "test_mocapbank.bvh"
 
 

@@ -11,7 +11,7 @@ the body, and the recovered hand time per body frame is compared with the truth.
     trunk-1 / -2   torchhand's default: trunk-frame features; pass 1 only / both passes (forearm-frame Eq. 9,
                    within phase)
     hand-only-2    the default with the session treated as a hand-only capture (no shoulder, no trunk: one
-                   fitted yaw)
+                   fitted rotation); L4 and L5 only, the levels whose session has a still trunk
 
 Errors are |recovered - true| hand time in ms per body frame: median, p95 over all frames, and p95 over moving
 frames (wrist speed above 25 % of its 95th percentile; holds cannot be timed from arm data).
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -43,7 +43,8 @@ from torchhand.splice.rigs import detect_rig
 from torchhand.splice.splice import arm_joints, clip_axes
 from torchhand.splice.synthetic import LEVELS, make_hand_session
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mocap"
+DATA = Path(os.environ.get("TORCHHAND_SHARED_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data")) \
+    / "mocap"
 BODIES = {
     "mocapbank": DATA / "bvh_python_tests" / "test_mocapbank.bvh",
     "cmu": DATA / "cmu_body_frozen_hands" / "01-01_v01.bvh",
@@ -81,6 +82,8 @@ def evaluate(body_name: str, level: str, seed: int, methods=METHODS) -> dict:
     moving = wrist_speed > 0.25 * np.percentile(wrist_speed, 95)
     out = {"body": body_name, "level": level, "seed": seed, "n": n, "m": m, "methods": {}}
     for meth in methods:
+        if meth == "hand-only-2" and LEVELS.index(level) < 4:
+            continue                   # a hand-only capture implies a still trunk: only L4 and L5 make one
         t0 = time.perf_counter()
         note = ""
         if meth == "uniform":
@@ -106,6 +109,51 @@ def evaluate(body_name: str, level: str, seed: int, methods=METHODS) -> dict:
     return out
 
 
+def _geodesic_deg(Ra: torch.Tensor, Rb: torch.Tensor) -> np.ndarray:
+    c = (((Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
+    return torch.rad2deg(torch.acos(c)).numpy()
+
+
+def evaluate_fingers(level: str, seed: int, start: int = 600) -> dict:
+    """GT-2: ManipNet's right-hand fingers (from ``start``, 120 Hz) on the mocapbank body's clock. The hand session
+    carries them at the warped time; the spliced file, written and read back, is compared joint by joint with the
+    fingers at the body's own time (geodesic angle, degrees)."""
+    from torchhand.splice import prepare_out, splice, write_splice
+    from torchhand.splice.retime import local_rotations, retime_motion
+    from torchhand.splice.synthetic import with_fingers
+    import tempfile
+
+    body = read_bvh(BODIES["mocapbank"])
+    rig = detect_rig(body)
+    units, up = clip_axes(body, rig, "right")
+    manip = read_bvh(DATA / "manipnet" / "mug1" / "rightHand.bvh")
+    mrig = detect_rig(manip)
+    arms = [rig.arms[s] for s in ("right", "left")]
+    hs = make_hand_session(body, level, torch.Generator().manual_seed(seed), shoulders=[a.shoulder for a in arms],
+                           elbows=[a.elbow for a in arms], wrists=[a.wrist for a in arms], up_axis=up,
+                           units_scale=units)
+    n, m = body.num_frames, hs.clip.num_frames
+    body_time_of_hand = hs.warp.inverse(np.arange(m) / hs.clip.fps)
+    hand, _ = with_fingers(hs.clip, rig, "right", manip, mrig, start + body_time_of_hand * manip.fps,
+                           finger_handedness="left", up_axis=up)
+    truth, trig = with_fingers(body, rig, "right", manip, mrig, start + np.arange(n) / body.fps * manip.fps,
+                               finger_handedness="left", up_axis=up)
+    res = splice(body, hand, side="right")
+    with tempfile.TemporaryDirectory() as d:
+        write_splice(res, prepare_out(Path(d) / "out"))
+        back = read_bvh(Path(d) / "out" / "spliced.bvh")
+    tj = trig.finger_joints("right")
+    names = [truth.names[j] for j in tj]
+    Rt = local_rotations(truth)[:, tj]
+    Rb = local_rotations(back)[:, [back.names.index(x) for x in names]]
+    uni = np.arange(n) * (m - 1) / (n - 1)
+    Ru = local_rotations(hand, retime_motion(hand, uni))[:, [hand.names.index(x) for x in names]]
+    e, eu = _geodesic_deg(Rb, Rt), _geodesic_deg(Ru, Rt)
+    return {"level": level, "seed": seed, "mean_deg": float(e.mean()), "p95_deg": float(np.percentile(e, 95)),
+            "uniform_mean_deg": float(eu.mean()), "uniform_p95_deg": float(np.percentile(eu, 95)),
+            "frames_equal": back.num_frames == n, "frame_time_equal": abs(back.frame_time - body.frame_time) < 1e-12}
+
+
 def _table(rows: list[dict], methods) -> str:
     lines = []
     keys = sorted({(r["body"], r["level"]) for r in rows}, key=lambda k: (k[0], LEVELS.index(k[1])))
@@ -115,6 +163,9 @@ def _table(rows: list[dict], methods) -> str:
         sel = [r for r in rows if r["body"] == body and r["level"] == level]
         cells = []
         for meth in methods:
+            if meth not in sel[0]["methods"]:
+                cells.append("-")
+                continue
             # pool the seeds: medians of the per-seed figures
             med = np.median([r["methods"][meth]["median_ms"] for r in sel])
             p95 = np.median([r["methods"][meth]["p95_ms"] for r in sel])
@@ -131,6 +182,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0-5", help="e.g. 0-5 or 0,3")
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--fingers", action="store_true", help="also GT-2: real fingers through the spliced BVH")
     ap.add_argument("--json", help="write every row here")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -153,8 +205,18 @@ def main(argv=None) -> int:
                     file=sys.stderr, flush=True)
     print("hand-time error per body frame, ms (median over seeds of each seed's median / p95 / moving-frame p95)")
     print(_table(rows, methods))
+    finger_rows = []
+    if args.fingers:
+        print("\nGT-2: finger rotations carried through the warp and spliced.bvh, geodesic error per joint, degrees")
+        print(f"{'level':5s} {'seed':>4s} {'mean':>6s} {'p95':>6s}   uniform mean / p95")
+        for level in ("L2", "L4"):
+            for seed in seeds:
+                r = evaluate_fingers(level, seed)
+                finger_rows.append(r)
+                print(f"{level:5s} {seed:4d} {r['mean_deg']:6.2f} {r['p95_deg']:6.2f}   "
+                      f"{r['uniform_mean_deg']:6.2f} / {r['uniform_p95_deg']:6.2f}", flush=True)
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps({"timing": rows, "fingers": finger_rows}, indent=1))
     return 0
 
 

@@ -100,8 +100,12 @@ def run(args) -> int:
     from ..splice.splice import ClipAxes, splice
 
     settings = SpliceSettings(band1=args.band1, band2=args.band2, passes=args.passes, features=args.features)
+    from pathlib import Path
+
+    created = not Path(args.out).exists()
     out = prepare_out(args.out, overwrite=args.overwrite)
     progress = Progress("splice", disable=args.no_progress)
+    written = False
     try:
         progress.update("reading", "")
         body = read_bvh(args.body)
@@ -123,6 +127,7 @@ def run(args) -> int:
         result.report["threads"] = threads
         progress.update("writing", "")
         write_splice(result, out)
+        written = True
         plots = []
         if args.plots:
             from torchhand.render.splice_plots import plot_splice
@@ -130,6 +135,8 @@ def run(args) -> int:
             plots = plot_splice(out)
     finally:
         progress.close()
+        if created and not written and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()                       # bad input found after validation: leave no empty directory
     r = result.report
     speed = r["local_speed_range"]
     print(f"wrote {out}/spliced.bvh: {r['body_frames']} frames at {r['body_fps']:.4g} fps, "

@@ -27,7 +27,9 @@ Steps, each a pure function of tensors (B pairs batched; rows = body frames i < 
 4. **Merge** (Sec. 4, "Merging and smoothing"): the paper takes the median marker position over the hand frames
    matched to one body frame; with joint angles a per-channel median fails at +-180 deg wraps, so the median
    matched *time* is taken instead, made non-decreasing and smoothed with a Gaussian of ``smooth`` seconds; the
-   caller resamples every joint at that time (slerp). This is the "blend discontinuities" step.
+   caller resamples every joint at that time (slerp). This is the "blend discontinuities" step. Inside body holds
+   the map is the straight line between the hold's aligned ends; at matching points it is corrected to the
+   requested hand frame (within the tolerance) and the correction spread linearly to the neighbouring points.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from ..errors import InputValueError
@@ -417,6 +420,7 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
     if s.hold_fraction > 0:
         hand_frame = _straighten_holds(hand_frame, P, body_fps, s, m)
     hand_frame = _gauss_smooth_1d(hand_frame, s.smooth * body_fps).clamp(0, m - 1)
+    hand_frame = _honour_anchors(hand_frame, anchors, s.tolerance, m)
     hand_frame = torch.cummax(hand_frame, dim=1).values
     return Alignment(hand_frame=hand_frame, hand_time=hand_frame / hand_fps, map1=map1, path1=res1.path,
                      path2=path2, cost1=C1.float(), cost2=cost2, status=res1.status, pass2_used=used,
@@ -471,6 +475,32 @@ def _straighten_holds(hand_frame: torch.Tensor, P: torch.Tensor, fps: float, set
                 xs = torch.arange(i, j + 1, dtype=hand_frame.dtype, device=hand_frame.device)
                 out[b, i:j + 1] = y0 + (y1 - y0) * (xs - x0) / (x1 - x0)
             i = j + 1
+    return out
+
+
+def _honour_anchors(hand_frame: torch.Tensor, anchors, T: float, m: int) -> torch.Tensor:
+    """Make the final map show hand frame y_k (within T) at body frame x_k: the path passes there, but the median of
+    its run in row x_k, pass 2 and the smoothing may not. The correction at each matching point is spread linearly
+    to the neighbouring points (zero at the clips' ends), so the map stays smooth."""
+    if anchors is None:
+        return hand_frame
+    B, n = hand_frame.shape
+    out = hand_frame.clone()
+    for b in range(B):
+        pts = anchors[b].tolist() if isinstance(anchors, torch.Tensor) else list(anchors[b] or [])
+        pts = [(int(x), int(y)) for x, y in pts if x >= 0 and y >= 0 and x < n - 1]
+        if not pts:
+            continue
+        xs, corr = [0], [0.0]
+        for x, y in sorted(pts):
+            v = float(hand_frame[b, x])
+            corr.append(min(max(v, y - T), y + T) - v)
+            xs.append(x)
+        xs.append(n - 1)
+        corr.append(0.0)
+        grid = torch.arange(n, dtype=torch.float64)
+        c = np.interp(grid.numpy(), np.array(xs, dtype=np.float64), np.array(corr))
+        out[b] = (hand_frame[b] + torch.from_numpy(c).to(hand_frame)).clamp(0, m - 1)
     return out
 
 

@@ -105,12 +105,12 @@ def _check_clip(clip: BVHClip, what: str) -> None:
     if not (MIN_FPS <= clip.fps <= MAX_FPS):
         raise InputValueError(f"{what}: frame rate {clip.fps:.4g} fps of {clip.path} is outside "
                               f"{MIN_FPS:.0f}-{MAX_FPS:.0f} fps (Frame Time {clip.frame_time:.6g} s)")
+    if clip.motion.shape[1] == 0 or np.ptp(clip.motion, axis=0).max() == 0.0:
+        raise InputValueError(f"{what}: no motion in {clip.path} (every channel constant): nothing to align")
     dur = (clip.num_frames - 1) * clip.frame_time
     if clip.num_frames < 5 or dur < 1.0:
         raise InputValueError(f"{what}: {clip.path} is too short to align ({clip.num_frames} frames, {dur:.2f} s; "
                               "at least 5 frames and 1 s)")
-    if clip.motion.shape[1] == 0 or np.ptp(clip.motion, axis=0).max() == 0.0:
-        raise InputValueError(f"{what}: no motion in {clip.path} (every channel constant): nothing to align")
 
 
 def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: SpliceSettings = SpliceSettings(),
@@ -145,6 +145,9 @@ def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: Splic
     if not hrig.fingers.get(side):
         raise InputValueError(f"hand: {hand.path} has no {side}-hand finger joints (rig '{hrig.name}'); "
                               "give --hand-map or check --side")
+    if wrist == "hand" and getattr(hrig.arms.get(side), "forearm", None) is None:
+        raise InputValueError(f"wrist: rig '{hrig.name}' of {hand.path} has no forearm joint above its {side} wrist, "
+                              "so its wrist rotation is not relative to a forearm; use --wrist body")
     body_axes = body_axes or ClipAxes()
     hand_axes = hand_axes or ClipAxes()
     bu, bup = clip_axes(body, brig, side, body_axes)

@@ -204,3 +204,30 @@ def _axis_angle(v: torch.Tensor) -> torch.Tensor:
     K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
     eye = torch.eye(3, dtype=v.dtype).expand_as(K)
     return eye + torch.sin(th) * K + (1 - torch.cos(th)) * (K @ K)
+
+
+def with_fingers(clip: BVHClip, rig, side: str, fingers: BVHClip, finger_rig, finger_frames: np.ndarray, *,
+                 finger_handedness: str = "right", body_handedness: str = "right", up_axis: str | None = None):
+    """A clip without fingers given real fingers: the finger rig's joints inserted under ``side``'s wrist and
+    driven by ``fingers`` at fractional ``finger_frames`` (one per frame of ``clip``; rotations slerped, rest
+    directions lined up as ``splice`` does). Used to put real finger motion on a synthetic clock (design note
+    GT-2).
+
+    Returns:
+        (new clip, its rig)
+    """
+    from dataclasses import replace
+
+    from .retarget import insert_fingers, retarget_fingers
+
+    if len(finger_frames) != clip.num_frames:
+        raise InputValueError(f"finger_frames: expected {clip.num_frames} frames, got {len(finger_frames)}")
+    ins = insert_fingers(clip, rig, side, fingers, finger_rig, hand_handedness=finger_handedness,
+                         body_handedness=body_handedness, up_axis=up_axis)
+    joints = finger_rig.finger_joints(side)
+    R = local_rotations(fingers, retime_motion(fingers, finger_frames, joints=joints))
+    rt = retarget_fingers(fingers, finger_rig, ins.clip, ins.rig, side, R, src_handedness=finger_handedness,
+                          dst_handedness=body_handedness, align_rest=True)
+    motion = rotations_to_channels(ins.clip, np.array(ins.clip.motion), rt.rotations)
+    motion.setflags(write=False)
+    return replace(ins.clip, motion=motion), ins.rig
