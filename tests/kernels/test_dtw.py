@@ -52,6 +52,24 @@ def warped_pairs(B: int, n: int, m: int, d: int, gen: torch.Generator, *, dtype=
     return x.to(device=device, dtype=dtype), y.to(device=device, dtype=dtype)
 
 
+def random_corridors(B: int, n: int, m: int, rng: np.random.Generator, *, monotone: bool = True):
+    """Column limits (col_lo, col_hi), (B, n) long. monotone: around a random increasing line from (0, 0) to
+    (n-1, m-1), wide enough for a path; otherwise independent random intervals (rows may be empty or disjoint)."""
+    lo, hi = np.empty((B, n), dtype=np.int64), np.empty((B, n), dtype=np.int64)
+    for b in range(B):
+        if monotone:
+            steps = rng.uniform(0.2, 1.0, size=n)
+            t = np.concatenate([[0.0], np.cumsum(steps[1:])])
+            centre = np.round(t / max(t[-1], 1e-12) * (m - 1)) if n > 1 else np.zeros(1)
+            reach = int(math.ceil(m / n))
+            lo[b] = np.maximum(centre - reach - rng.integers(0, 3, size=n), 0)
+            hi[b] = np.minimum(centre + reach + rng.integers(0, 3, size=n), m - 1)
+        else:
+            lo[b] = rng.integers(-2, m, size=n)
+            hi[b] = lo[b] + rng.integers(-1, m // 2 + 2, size=n)
+    return torch.from_numpy(lo), torch.from_numpy(hi)
+
+
 # ------------------------------------------------------------------------------------------ plain references
 def paper_mask(n, m, W=None, anchors=(), T=0.0):
     """Allowed cells, straight from Eq. 3 / Algorithm 1 with 1-based (i, j); bounds read in absolute columns."""
@@ -71,6 +89,12 @@ def paper_mask(n, m, W=None, anchors=(), T=0.0):
                 if lb <= j <= ub:
                     mask[i - 1, j - 1] = True
     return mask
+
+
+def limits_mask(lo, hi, m):
+    """Cells allowed by per-row column limits (1-D sequences of length n, inclusive)."""
+    j = np.arange(m)
+    return (j[None, :] >= np.asarray(lo)[:, None]) & (j[None, :] <= np.asarray(hi)[:, None])
 
 
 def naive_dtw(c, mask=None, anchors=(), T=0.0):
@@ -122,8 +146,9 @@ def brute_force_dtw(c, mask, anchors=(), T=0.0):
     return best
 
 
-def check_path(res: DTWResult, cost: torch.Tensor, anchors=None, T=0.0):
-    """Monotone, contiguous, from (0,0) to (n-1,m-1), padded with -1; its cost equals the distance."""
+def check_path(res: DTWResult, cost: torch.Tensor, anchors=None, T=0.0, col_lo=None, col_hi=None):
+    """Monotone, contiguous, from (0,0) to (n-1,m-1), padded with -1, inside the column limits; its cost equals the
+    distance."""
     B, n, m = cost.shape
     for b in range(B):
         L = int(res.path_length[b])
@@ -138,7 +163,10 @@ def check_path(res: DTWResult, cost: torch.Tensor, anchors=None, T=0.0):
         steps = q[1:] - q[:-1]
         assert bool(((steps >= 0) & (steps <= 1)).all()) and bool((steps.sum(1) >= 1).all())
         pc = cost[b].double().cpu()[q[:, 0], q[:, 1]].sum()
-        assert float(pc) == pytest.approx(float(res.distance[b]), rel=1e-6, abs=1e-9)
+        rel = 1e-12 if cost.dtype == torch.float64 else 1e-6
+        assert float(pc) == pytest.approx(float(res.distance[b]), rel=rel, abs=1e-9)
+        if col_lo is not None:
+            assert bool((q[:, 1] >= col_lo[b].cpu()[q[:, 0]]).all() and (q[:, 1] <= col_hi[b].cpu()[q[:, 0]]).all())
         for x, y in (anchors[b] if anchors is not None else []):
             cols = q[q[:, 0] == x, 1]
             assert bool(((cols - y).abs() <= T).any()), (b, x, y, cols.tolist())
@@ -157,6 +185,22 @@ def test_smoke_shapes(B, dtype, device, gen):
     assert res.path_length.shape == (B,) and res.status.shape == (B,) and res.status.dtype == torch.int8
     assert bool((res.status == CONVERGED).all())
     check_path(res, cost)
+
+
+@pytest.mark.parametrize("d", [1, 3])
+def test_pairwise_cost(d, dtype, gen):
+    """Against numpy (the 1-feature case has its own code path); exact zeros; gradients in float64."""
+    x, y = random_pairs(2, 5, 7, d, gen, dtype=dtype)
+    ref = np.sqrt(((x.double().numpy()[:, :, None] - y.double().numpy()[:, None]) ** 2).sum(-1))
+    tol = dict(rtol=1e-12, atol=1e-14) if dtype == torch.float64 else dict(rtol=1e-5, atol=1e-6)
+    for squared in (False, True):
+        c = pairwise_cost(x, y, squared=squared)
+        assert c.shape == (2, 5, 7) and c.dtype == dtype
+        np.testing.assert_allclose(c.double().numpy(), ref ** 2 if squared else ref, **tol)
+    assert bool((pairwise_cost(x, x).diagonal(dim1=1, dim2=2) == 0).all())
+    xg, yg = x.double().requires_grad_(), y.double().requires_grad_()
+    for squared in (False, True):
+        assert torch.autograd.gradcheck(lambda a, b: pairwise_cost(a, b, squared=squared), (xg, yg))
 
 
 def test_against_naive_dp_unconstrained(dtype, gen):
@@ -284,7 +328,8 @@ def test_invariants_seeded(gen):
 
 
 def test_code_paths_agree(gen, monkeypatch):
-    """Shared-band window vs full rows (tensor band), bulk vs per-row backtrack: identical results."""
+    """Window vs full rows, one numeric band vs a per-pair tensor band, chunk sizes, one or two ops to interleave
+    the predecessors: identical results."""
     import torchhand.kernels.dtw as dtw_module
 
     x, y = warped_pairs(6, 40, 33, 3, gen)
@@ -293,10 +338,113 @@ def test_code_paths_agree(gen, monkeypatch):
         ref = dtw(cost, band=W)
         as_tensor = dtw(cost, band=None if W is None else torch.full((6,), W, dtype=torch.float64))
         assert torch.equal(ref.path, as_tensor.path) and torch.equal(ref.distance, as_tensor.distance)
-        monkeypatch.setattr(dtw_module, "_BULK_BACKTRACK", 0)
-        per_row = dtw(cost, band=W)
+        for name, value in (("_CHUNK_CELLS", 1), ("_CHUNK_CELLS", 7 * 6 * 33), ("_WINDOW_MAX_FRACTION", 0.0),
+                            ("_SPLIT_CELLS", 0)):
+            monkeypatch.setattr(dtw_module, name, value)           # 1 row per chunk, 7 rows, full rows, two adds
+            other = dtw(cost, band=W)
+            monkeypatch.undo()
+            assert torch.equal(ref.path, other.path) and torch.equal(ref.status, other.status)
+            torch.testing.assert_close(other.distance, ref.distance, rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("B", [1, 7])
+def test_column_limits_against_naive_dp(B, dtype, gen, monkeypatch):
+    """Per-row column limits (monotone corridors and arbitrary intervals), alone and with a band, n != m."""
+    import torchhand.kernels.dtw as dtw_module
+
+    rng = np.random.default_rng(3)
+    feasible = 0
+    for trial in range(16):
+        n, m = int(rng.integers(2, 28)), int(rng.integers(2, 28))
+        m += m == n
+        W = None if trial % 3 == 0 else float(rng.uniform(1.0, 8.0))
+        lo, hi = random_corridors(B, n, m, rng, monotone=trial % 4 != 3)
+        cost = torch.rand(B, n, m, generator=gen, dtype=torch.float64).to(dtype)
+        res = dtw(cost, band=W, col_lo=lo, col_hi=hi)
+        band_mask = paper_mask(n, m, W) if W is not None else np.ones((n, m), dtype=bool)
+        ref = np.array([naive_dtw(cost[b].double().numpy(), band_mask & limits_mask(lo[b], hi[b], m))
+                        for b in range(B)])
+        inf = torch.from_numpy(np.isinf(ref))
+        assert res.status.tolist() == torch.where(inf, INFEASIBLE, CONVERGED).tolist()
+        assert not bool(torch.isnan(res.distance).any()) and bool(torch.isinf(res.distance[inf]).all())
+        torch.testing.assert_close(res.distance.double()[~inf], torch.from_numpy(ref)[~inf], rtol=RTOL[dtype],
+                                   atol=0)
+        check_path(res, cost, col_lo=lo, col_hi=hi)
+        feasible += int((~inf).sum())
+        # Full rows (no window) give the same result.
+        monkeypatch.setattr(dtw_module, "_WINDOW_MAX_FRACTION", 0.0)
+        full = dtw(cost, band=W, col_lo=lo, col_hi=hi)
         monkeypatch.undo()
-        assert torch.equal(ref.path, per_row.path) and torch.equal(ref.status, per_row.status)
+        assert torch.equal(full.status, res.status)
+        torch.testing.assert_close(full.distance, res.distance, rtol=RTOL[dtype], atol=0)
+    assert feasible >= 8 * B
+
+
+def test_column_limits_edge_cases(gen):
+    cost = torch.rand(3, 9, 14, generator=gen, dtype=torch.float64)
+    lo = torch.zeros(3, 9, dtype=torch.long)
+    hi = torch.full((3, 9), 13, dtype=torch.long)
+    # Limits that allow everything (also beyond the matrix) change nothing; only one of the two may be given.
+    free = dtw(cost)
+    for kw in (dict(col_lo=lo - 5, col_hi=hi + 5), dict(col_lo=lo), dict(col_hi=hi)):
+        res = dtw(cost, **kw)
+        assert torch.equal(res.path, free.path) and torch.equal(res.distance, free.distance)
+    # An empty row (pair 0), limits that exclude the start (pair 1) or the end (pair 2): infeasible, never NaN.
+    lo2, hi2 = lo.clone(), hi.clone()
+    lo2[0, 4], hi2[0, 4] = 7, 6
+    lo2[1, 0] = 1
+    hi2[2, 8] = 12
+    res = dtw(cost, col_lo=lo2, col_hi=hi2)
+    assert res.status.tolist() == [INFEASIBLE] * 3 and bool(torch.isinf(res.distance).all())
+    assert bool((res.path == -1).all()) and bool((res.path_length == 0).all())
+    # Limits combine with anchors (intersection): a corridor through the matching point keeps it.
+    anchors = [[(4, 6)], [], [(2, 3)]]
+    lo3, hi3 = random_corridors(3, 9, 14, np.random.default_rng(4))
+    res = dtw(cost, anchors=anchors, tolerance=1, col_lo=lo3, col_hi=hi3)
+    for b in range(3):
+        mask = paper_mask(9, 14, None, anchors[b], 1) & limits_mask(lo3[b], hi3[b], 14)
+        ref = naive_dtw(cost[b].numpy(), mask, anchors[b], 1)
+        assert float(res.distance[b]) == pytest.approx(ref, rel=1e-12) or (math.isinf(ref) and
+                                                                            int(res.status[b]) == INFEASIBLE)
+    check_path(res, cost, anchors, 1, col_lo=lo3, col_hi=hi3)
+
+
+def test_wide_rows_use_the_int32_store(gen):
+    """Windows over 16384 columns pack the argmins in int32 instead of int16."""
+    n, m = 3, 17000
+    cost = torch.rand(1, n, m, generator=gen, dtype=torch.float64)
+    res = dtw(cost)
+    assert float(res.distance[0]) == pytest.approx(naive_dtw(cost[0].numpy()), rel=1e-12)
+    check_path(res, cost)
+
+
+def test_diagonal_preference_breaks_ties(gen):
+    zero = torch.zeros(1, 6, 6, dtype=torch.float64)
+    corner = [[0, j] for j in range(6)] + [[i, 5] for i in range(1, 6)]
+    assert dtw(zero).path[0].tolist() == corner                          # documented default tie-breaking
+    res = dtw(zero, diagonal=1e-3)
+    assert res.path[0, :6].tolist() == [[i, i] for i in range(6)] and int(res.path_length[0]) == 6
+    assert float(res.distance[0]) == 0.0                                  # the caller's cost, not the penalty
+    # With a band the path no longer hugs the band's edge.
+    res = dtw(torch.zeros(2, 30, 30, dtype=torch.float64), band=4.0, diagonal=1e-3)
+    assert torch.equal(res.path[:, :30], torch.arange(30).view(1, 30, 1).expand(2, 30, 2))
+    # n != m: the path minimises the penalty alone (naive DP on the penalty as a cost).
+    n, m = 7, 12
+    i, j = np.meshgrid(np.arange(n) / (n - 1), np.arange(m) / (m - 1), indexing="ij")
+    pen = 0.5 * (i - j) ** 2
+    res = dtw(torch.zeros(1, n, m, dtype=torch.float64), diagonal=0.5)
+    q = res.path[0, : int(res.path_length[0])].numpy()
+    assert pen[q[:, 0], q[:, 1]].sum() == pytest.approx(naive_dtw(pen), rel=1e-12)
+    # Integer costs with many ties: eps < 1 / (n + m - 1) keeps the least distance; paths stay valid.
+    for B, n, m in [(1, 15, 15), (7, 20, 31)]:
+        cost = torch.randint(0, 3, (B, n, m), generator=gen).double()
+        plain = dtw(cost, band=6.0)
+        tied = dtw(cost, band=6.0, diagonal=0.9 / (n + m - 1))
+        assert torch.equal(tied.distance, plain.distance)
+        check_path(tied, cost)
+    # n or m = 1: no penalty, nothing to break.
+    one = torch.rand(2, 1, 5, generator=gen, dtype=torch.float64)
+    assert torch.equal(dtw(one, diagonal=1.0).path, dtw(one).path)
 
 
 def test_anchor_exactly_on_path_with_zero_tolerance(gen):
@@ -368,6 +516,21 @@ def test_bad_arguments_raise():
         dtw(c, anchors=[[(1, 1, 1)], []])
     with pytest.raises(ValueError, match="x, y"):
         pairwise_cost(torch.rand(2, 4, 3), torch.rand(2, 5, 2))
+    lim = torch.zeros(2, 4, dtype=torch.long)
+    with pytest.raises(TypeError, match="col_lo"):
+        dtw(c, col_lo=lim.float())
+    with pytest.raises(TypeError, match="col_hi"):
+        dtw(c, col_hi=[[0, 1, 2, 3], [0, 1, 2, 3]])
+    with pytest.raises(ValueError, match="col_lo"):
+        dtw(c, col_lo=torch.zeros(2, 5, dtype=torch.long))
+    with pytest.raises(ValueError, match="col_hi"):
+        dtw(c, col_hi=torch.zeros(4, dtype=torch.long))
+    with pytest.raises(ValueError, match="diagonal"):
+        dtw(c, diagonal=-1e-3)
+    with pytest.raises(ValueError, match="diagonal"):
+        dtw(c, diagonal=float("nan"))
+    with pytest.raises(TypeError, match="diagonal"):
+        dtw(c, diagonal="1")
 
 
 def test_float32_accumulates_in_float64(gen):

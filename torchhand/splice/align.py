@@ -330,7 +330,6 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
         body_trunk = hand_trunk = None
     P = _features(body, body_shoulder, body_trunk)
     Q = _features(hand, hand_shoulder, hand_trunk)
-    tb = _tie_break(n, m, s.tie_break, dev)
     yaw = torch.zeros(B, dtype=body.dtype, device=dev)
 
     def pass1(Qr: torch.Tensor):
@@ -342,7 +341,7 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
         else:
             C = sign_cost(sign_features(P, body_fps, s.sigma, s.dead_zone),
                           sign_features(Qr, hand_fps, s.sigma, s.dead_zone))
-        res = dtw((C.double() + tb), band=W1, anchors=anchors, tolerance=s.tolerance)
+        res = dtw(C.double(), band=W1, anchors=anchors, tolerance=s.tolerance, diagonal=s.tie_break)
         return C, res
 
     Qr = Q
@@ -357,7 +356,8 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
         PK = P.unsqueeze(1).expand(B, K, n, 4, 3).reshape(B * K, n, 4, 3)
         CK = sign_cost(sign_features(PK, body_fps, s.sigma, s.dead_zone),
                        sign_features(QK, hand_fps, s.sigma, s.dead_zone))
-        rK = dtw(CK.double() + tb, band=W1, anchors=_repeat_anchors(anchors, K), tolerance=s.tolerance)
+        rK = dtw(CK.double(), band=W1, anchors=_repeat_anchors(anchors, K), tolerance=s.tolerance,
+                 diagonal=s.tie_break)
         best = rK.distance.view(B, K).argmin(1)                                     # (B,)
         path = rK.path.view(B, K, -1, 2)[torch.arange(B, device=dev), best]
         m1 = path_median(path, n)
@@ -402,8 +402,7 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
                 D2 = D2 + s.within_phase * (at_k - at_i).clamp(min=0)
             cost2 = D2.float()
             anc2 = _anchors_pass2(anchors, map1, B, n, dev)
-            res2 = dtw(D2.double() + _tie_break(n, n, s.tie_break, dev), band=W2, anchors=anc2,
-                       tolerance=s.tolerance)
+            res2 = dtw(D2.double(), band=W2, anchors=anc2, tolerance=s.tolerance, diagonal=s.tie_break)
             ok2 = want & (res2.status == int(SolverStatus.CONVERGED))
             k_med = path_median(res2.path, n)
             refined = _interp_frames(map1.unsqueeze(-1), k_med).squeeze(-1)
@@ -502,12 +501,6 @@ def _honour_anchors(hand_frame: torch.Tensor, anchors, T: float, m: int) -> torc
         c = np.interp(grid.numpy(), np.array(xs, dtype=np.float64), np.array(corr))
         out[b] = (hand_frame[b] + torch.from_numpy(c).to(hand_frame)).clamp(0, m - 1)
     return out
-
-
-def _tie_break(n: int, m: int, eps: float, dev) -> torch.Tensor:
-    i = torch.arange(n, dtype=torch.float64, device=dev) / max(n - 1, 1)
-    j = torch.arange(m, dtype=torch.float64, device=dev) / max(m - 1, 1)
-    return (eps * (i.unsqueeze(1) - j.unsqueeze(0)) ** 2).unsqueeze(0)
 
 
 def _anchors_pass2(anchors, map1: torch.Tensor, B: int, n: int, dev):
