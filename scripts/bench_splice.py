@@ -2,10 +2,12 @@
 
 Cases (median of --repeat runs, one torch thread unless --threads):
   align      the whole alignment (features, both passes, merge) of a 569-frame body with 569-, 1138- and
-             2276-frame hands, and the paper's other lengths (503, 560, 280 frames with equal hands), both feature
-             modes; markers from the mocapbank body resampled to the length (the work does not depend on content)
+             2276-frame hands, and the paper's other lengths (503, 560, 280 frames with equal hands): the mocapbank
+             body resampled to the length and a warped L4 session of it; modes: trunk (the default, the session
+             has a trunk), handonly (the session seen as a hand capture: 12 yaws tried in one batched DTW), paper
   cost       Eq. 6 (trunk mode, one matrix product) and Eq. 6/7 (paper mode, per-cell yaw) alone, 569 x 2276
-  splice     one full splice through files: mocapbank body + a warped 60 Hz session (the CLI path less I/O)
+  splice     one full splice of clips (the CLI path less file I/O): the 569-frame body and its session carrying
+             ManipNet's fingers
   batch      B pairs of 200 x 200 marker tracks: pass 1 aligned in one call; and the DTW alone on the Eq. 6
              costs vs dtaidistance's N-d DTW per pair on the same costs (Eq. 6 is the squared Euclidean distance
              of the 24 sign channels, which dtaidistance sums), 10 % band, pairs per second
@@ -89,18 +91,43 @@ def main(argv=None) -> int:
               flush=True)
 
     paper = {569: 10.95, 503: 8.72, 560: 10.81, 280: 2.75}
+    from torchhand.splice import splice
+    from torchhand.splice.retime import retime_motion
+    from torchhand.splice.synthetic import make_hand_session, with_fingers
+
+    manip_path = DATA / "manipnet" / "mug1" / "rightHand.bvh"
+    manip = read_bvh(manip_path) if manip_path.is_file() else None
+    mrig = detect_rig(manip) if manip is not None else None
+    arms = [rig.arms[s_] for s_ in ("right", "left")]
+    aj = arm_joints(body, rig, "right")
     shapes = [(569, 569), (569, 1138), (569, 2276), (503, 503), (560, 560), (280, 280)]
     for n, m in shapes:
-        P = _resample(mk.markers, n)[None].to(dev)
-        S = _resample(mk.shoulder, n)[None].to(dev)
-        R = _resample(mk.trunk, n)[None].to(dev)          # not orthonormal between samples: timing only
-        Q = _resample(mk.markers, m)[None].to(dev)
-        for mode in ("trunk", "paper"):
-            st = SpliceSettings(features=mode)
-            fn = lambda: align(P, Q, body_fps=30.0, hand_fps=30.0 * m / n, body_shoulder=S, body_trunk=R,
+        # the mocapbank body resampled to n frames; an L4 session of it (warped, still trunk) with m frames
+        bn = body.with_motion(retime_motion(body, np.linspace(0, body.num_frames - 1, n)))
+        T_b = (n - 1) * body.frame_time
+        hs = make_hand_session(bn, "L4", torch.Generator().manual_seed(0), shoulders=[a.shoulder for a in arms],
+                               elbows=[a.elbow for a in arms], wrists=[a.wrist for a in arms], up_axis=up,
+                               units_scale=units, hand_fps=(m - 1) / T_b)
+        mb = virtual_markers(bn, aj, units_scale=units, up_axis=up)
+        mh = virtual_markers(hs.clip, aj, units_scale=units, up_axis=up)
+        mm = mh.num_frames
+        P, S, R = mb.markers[None].to(dev), mb.shoulder[None].to(dev), mb.trunk[None].to(dev)
+        Q, QS, QR = mh.markers[None].to(dev), mh.shoulder[None].to(dev), mh.trunk[None].to(dev)
+        for mode, hand_trunk in (("trunk", True), ("handonly", False), ("paper", True)):
+            st = SpliceSettings(features="paper" if mode == "paper" else "trunk")
+            fn = lambda: align(P, Q, body_fps=mb.fps, hand_fps=mh.fps, body_shoulder=S, body_trunk=R,
+                               hand_shoulder=QS if hand_trunk else None, hand_trunk=QR if hand_trunk else None,
                                settings=st)
             med, spread = _time(fn, args.repeat, dev)
-            add("align", n, m, mode, med, spread, paper.get(n) if n == m else None)
+            add("align", n, mm, mode, med, spread, paper.get(n) if n == m else None)
+        if manip is not None and n == 569:
+            # the whole splice of clips (rigs, markers, both passes, merge, resampling, retargeting; no file I/O):
+            # the session carries ManipNet's fingers
+            bt = hs.warp.inverse(np.arange(mm) / hs.clip.fps)
+            hand, _ = with_fingers(hs.clip, rig, "right", manip, mrig, 600 + bt * manip.fps,
+                                   finger_handedness="left", up_axis=up)
+            med, spread = _time(lambda: splice(bn, hand), args.repeat, "cpu")
+            add("splice", n, mm, "trunk", med, spread, paper[569] if mm == 569 else None)
 
     n, m = 569, 2276
     P = _resample(mk.markers, n)[None].to(dev)
@@ -121,8 +148,13 @@ def main(argv=None) -> int:
     starts = torch.randint(0, mk.num_frames - L - 3, (B,), generator=g).tolist()
     PB = torch.stack([mk.markers[s:s + L] for s in starts]).to(dev)
     QB = torch.stack([mk.markers[s + 3:s + 3 + L] for s in starts]).to(dev)
+    SB = torch.stack([mk.shoulder[s:s + L] for s in starts]).to(dev)
+    RB = torch.stack([mk.trunk[s:s + L] for s in starts]).to(dev)
+    QSB = torch.stack([mk.shoulder[s + 3:s + 3 + L] for s in starts]).to(dev)
+    QRB = torch.stack([mk.trunk[s + 3:s + 3 + L] for s in starts]).to(dev)
     st = SpliceSettings(passes=1)
-    med, spread = _time(lambda: align(PB, QB, body_fps=30.0, hand_fps=30.0, settings=st), args.repeat, dev)
+    med, spread = _time(lambda: align(PB, QB, body_fps=30.0, hand_fps=30.0, body_shoulder=SB, body_trunk=RB,
+                                      hand_shoulder=QSB, hand_trunk=QRB, settings=st), args.repeat, dev)
     add("batch", L, L, f"align B={B}", med, spread)
     rows[-1]["pairs_per_s"] = B / med
     # the DP alone on Eq. 6 costs vs dtaidistance on the same costs: Eq. 6 is the squared Euclidean distance of

@@ -103,3 +103,34 @@ def test_blender_imports_written_bvh(bpy, tmp_path, rig):
         tail = np.stack([world[:3, :3] @ np.array(arm.pose.bones[clip.names[clip.parents[j]]].tail) + world[:3, 3]
                          for j in tails])
         np.testing.assert_allclose(tail, expected[tails], rtol=0, atol=TOL, err_msg=f"{rig} End Sites, frame {f}")
+
+
+def test_blender_imports_a_spliced_file(bpy, tmp_path):
+    """``torchhand splice``'s output (a finger-less body given Leap fingers under its wrist) opens in Blender with
+    one bone per joint, every frame, and the wrist and finger joints where torchhand's FK puts them."""
+    from torchhand.cli import main
+
+    body, hand = MOCAP / "bvh_python_tests" / "test_mocapbank.bvh", MOCAP / "leap_hand_bvh" / "hello-world.bvh"
+    for p in (body, hand):
+        if not p.is_file():
+            pytest.skip(f"reference data not found: {p} (set TORCHHAND_SHARED_DATA)")
+    out = tmp_path / "out"
+    assert main(["splice", "--body", str(body), "--hand", str(hand), "--out", str(out), "--no-progress"]) == 0
+    clip = read_bvh(out / "spliced.bvh")
+    arm = import_with_blender(bpy, out / "spliced.bvh")
+    joints = [n for n, end in zip(clip.names, clip.is_end_site) if not end]
+    assert sorted(b.name for b in arm.data.bones) == sorted(joints)
+    assert tuple(arm.animation_data.action.frame_range) == (1.0, float(clip.num_frames))
+    fingers = [n for n in joints if n.startswith("r") and n[1:2].isupper()]       # Leap's rThumb1 .. rPinky3
+    assert len(fingers) >= 15
+    named = ["RightWrist"] + fingers
+    frames = [0, clip.num_frames // 2, clip.num_frames - 1]
+    G = clip.global_transforms(frames).numpy()
+    world = np.array(arm.matrix_world)
+    for k, f in enumerate(frames):
+        bpy.context.scene.frame_set(1 + f)
+        expected = G[k, :, :3, 3] @ AXES.T
+        for name in named:
+            head = world[:3, :3] @ np.array(arm.pose.bones[name].head) + world[:3, 3]
+            np.testing.assert_allclose(head, expected[clip.joint_index(name)], rtol=0, atol=TOL,
+                                       err_msg=f"{name} frame {f}")
