@@ -6,14 +6,13 @@ Conventions: metres, radians, quaternions wxyz, column-vector 4x4 transforms (se
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .._atomic import atomic_text
 from ..errors import InputValueError, MissingFileError
 from ._mjcf_common import _ROOT_WRAPPER, _mat_to_quat
 from .model import GEOM_TYPES, HandModel
@@ -135,15 +134,5 @@ def save_mjcf(hand: HandModel, path) -> Path:
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise MissingFileError(f"path: folder not found: {folder}")
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_text(path, text)
     return path
