@@ -607,13 +607,18 @@ def test_insert_manipnet_fingers_into_mocapbank():
     assert np.array_equal(clip.motion[:, ins.column_map], body.motion)
     new_cols = np.setdiff1d(np.arange(clip.motion.shape[1]), ins.column_map)
     assert len(new_cols) == 16 * 3 and not clip.motion[:, new_cols].any()
-    for j, n in enumerate(body.names):
+    # every joint stays but the wrist's End Site (the fingers replace that hand bone)
+    gone = [n for n in body.names if n not in clip.names]
+    assert gone == ["RightWrist_end"]
+    kept = [j for j, n in enumerate(body.names) if n not in gone]
+    for j in kept:
+        n = body.names[j]
         k = clip.names.index(n)
         assert clip.channels[k] == body.channels[j]
         assert list(ins.column_map[body.channel_start[j]:body.channel_start[j] + len(body.channels[j])]) == \
             list(range(clip.channel_start[k], clip.channel_start[k] + len(clip.channels[k])))
-    old = [clip.names.index(n) for n in body.names]
-    assert np.array_equal(clip.global_transforms().numpy()[:, old], body.global_transforms().numpy())
+    old = [clip.names.index(body.names[j]) for j in kept]
+    assert np.array_equal(clip.global_transforms().numpy()[:, old], body.global_transforms().numpy()[:, kept])
     assert rig.arms["left"].wrist == clip.names.index("LeftWrist") and not rig.has_fingers("left")
     # size: wrist to middle tip = 0.19 m x forearm / 0.26 m
     rest = rest_positions(clip)

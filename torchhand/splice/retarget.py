@@ -48,7 +48,8 @@ Insertion (:func:`insert_fingers`)
     rule of :func:`torchhand.mocap.hand_frame_rotation` (x from the wrist to its child or End Site, the back of
     the hand up for a horizontal arm, outward for a hanging one), so the inserted hand continues the forearm.
 
-    Hierarchy order: the new joints follow the wrist's existing subtree (after its End Site, which stays), so
+    The wrist's End Site, if it has one (the hand bone of a finger-less rig), is removed: it would run through the
+    palm. Hierarchy order: the new joints follow the wrist's existing subtree, so
     joint indices remain a depth-first order, parents precede children, and ``motion``'s columns follow the
     joints in index order as :attr:`BVHClip.channel_start` assumes. Joints after the insertion point shift by the
     number of new joints; ``column_map[c]`` is the new column of the body's column ``c``. Names: the hand's names,
@@ -423,7 +424,21 @@ def insert_fingers(body_clip: BVHClip, body_rig: Rig, side: str, hand_clip: BVHC
     column_map.setflags(write=False)
     clip = replace(body_clip, names=all_names, parents=all_parents, offsets=all_offsets, channels=all_channels,
                    is_end_site=all_ends, motion=motion)
-    return Inserted(clip=clip, rig=_inserted_rig(body_rig, hand_rig, side, clip, old, pos), column_map=column_map)
+    # The wrist's End Site (a finger-less rig's hand bone) would now run through the palm: the fingers say where
+    # the hand ends. End Sites have no channels, so the motion columns do not move.
+    drop = {old(j) for j in body_clip.children(barm.wrist) if body_clip.is_end_site[j]}
+    keep = [i for i in range(clip.num_joints) if i not in drop]
+    idx = {o: n for n, o in enumerate(keep)}
+    offs = np.ascontiguousarray(clip.offsets[keep])
+    offs.setflags(write=False)
+    clip = replace(clip, names=tuple(clip.names[i] for i in keep),
+                   parents=tuple(idx[clip.parents[i]] if clip.parents[i] >= 0 else -1 for i in keep),
+                   offsets=offs, channels=tuple(clip.channels[i] for i in keep),
+                   is_end_site=tuple(clip.is_end_site[i] for i in keep))
+    old2 = lambda i: idx[old(i)]                                 # noqa: E731
+    pos2 = {k: idx[v] for k, v in pos.items()}
+    return Inserted(clip=clip, rig=_inserted_rig(body_rig, hand_rig, side, clip, old2, pos2),
+                    column_map=column_map)
 
 
 def _subtree(parents, j: int) -> list[int]:
