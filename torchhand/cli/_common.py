@@ -67,12 +67,13 @@ class Progress:
         if self.bar is not None:
             if fraction is not None:
                 self.bar.n = int(1000 * min(max(fraction, 0.0), 1.0))
-            self.bar.set_postfix_str(f"{stage}: {text}", refresh=True)
+            self.bar.set_postfix_str(f"{stage}: {text}" if text else stage, refresh=True)
             return
         now = time.perf_counter()
         if stage != self.stage or now - self.last >= self.every:
             self.stage, self.last = stage, now
-            print(f"{self.name}: {now - self.t0:6.1f} s  {stage}: {text}", file=self.stream, flush=True)
+            print(f"{self.name}: {now - self.t0:6.1f} s  {stage}" + (f": {text}" if text else ""), file=self.stream,
+                  flush=True)
 
     def close(self) -> None:
         if self.bar is not None:

@@ -107,7 +107,7 @@ def run(args) -> int:
     progress = Progress("splice", disable=args.no_progress)
     written = False
     try:
-        progress.update("reading", "")
+        progress.update("reading", f"{args.body}, {args.hand}")
         body = read_bvh(args.body)
         hand = read_bvh(args.hand)
         matches, tol = parse_matches(args.match, body.fps, hand.fps)
@@ -125,7 +125,7 @@ def run(args) -> int:
                         matches=matches or None, wrist=args.wrist,
                         progress=lambda stage: progress.update(stage, ""))
         result.report["threads"] = threads
-        progress.update("writing", "")
+        progress.update("writing", str(out))
         write_splice(result, out)
         written = True
         plots = []
