@@ -671,3 +671,29 @@ def test_inserted_clip_writes_and_reads_back(tmp_path):
     assert back.channels == ins.clip.channels and np.array_equal(back.offsets, ins.clip.offsets)
     rig = detect_rig(back)
     assert rig.fingers == ins.rig.fingers and rig.arms == ins.rig.arms
+
+
+def test_torchhands_own_hand_is_recognised():
+    """The links of torchhand's hand model (a result's hand.xml, exported as BVH) name a rig: palm = wrist,
+    thumb metacarpal/proximal/distal = CMC/MCP/IP, the other fingers' metacarpal..distal = ordinals 0..3."""
+    import torch
+
+    import torchhand
+    from torchhand.bvh import BVHClip
+
+    h = torchhand.default_hand("right").to("cpu", torch.float64)
+    T = h.forward_kinematics(h.q_rest[None])[0].numpy()
+    par = [int(p) for p in h.chain.link_parent]
+    offs = np.array([T[j, :3, 3] - (T[p, :3, 3] if p >= 0 else 0) for j, p in enumerate(par)])
+    ch = tuple((("Xposition", "Yposition", "Zposition") if p < 0 else ()) + ("Zrotation", "Xrotation", "Yrotation")
+               for p in par)
+    clip = BVHClip(path="right_hand.bvh", names=tuple(h.link_names), parents=tuple(par), offsets=offs, channels=ch,
+                   is_end_site=(False,) * len(par), frame_time=1 / 30,
+                   motion=np.zeros((2, sum(len(c) for c in ch))))
+    rig = detect_rig(clip)
+    assert rig.name == "torchhand" and rig.arms["right"].wrist == h.link_names.index("palm")
+    f = rig.fingers["right"]
+    assert f[("thumb", 1)] == h.link_names.index("thumb_metacarpal")
+    assert f[("pinky", 0)] == h.link_names.index("little_metacarpal")
+    assert f[("index", 3)] == h.link_names.index("index_distal")
+    assert len(f) == 19

@@ -75,7 +75,7 @@ __all__ = ["FINGERS", "SIDES", "KNOWN_RIGS", "Arm", "Rig", "detect_rig", "rest_p
 
 SIDES = ("right", "left")
 
-KNOWN_RIGS = ("mixamo", "mblab", "cmu", "cc", "mocapbank", "leap", "manipnet")
+KNOWN_RIGS = ("mixamo", "mblab", "cmu", "cc", "mocapbank", "leap", "manipnet", "torchhand")
 """Rig names :func:`detect_rig` accepts besides "auto" and a map path (``cmu`` = ``mblab``)."""
 
 _ARM_ROLES = ("shoulder", "elbow", "forearm", "wrist", "trunk")
@@ -183,7 +183,7 @@ def _role_key(item) -> tuple[int, int]:
 _S_WORD = r"(?P<s>right|left)"
 _S_LETTER = r"(?P<s>r|l)"
 _FINGER_WORDS = {"thumb": "thumb", "index": "index", "middle": "middle", "mid": "middle", "ring": "ring",
-                 "pinky": "pinky"}
+                 "pinky": "pinky", "little": "pinky"}
 _F = r"(?P<f>thumb|index|middle|mid|ring|pinky)"
 
 
@@ -220,6 +220,13 @@ _NAMINGS = (
                    r"(?P<f>index|middle|ring|pinky)_mcp(?:_fe)?": (None, 1),
                    r"(?P<f>index|middle|ring|pinky)_pip(?:_fe)?": (None, 2),
                    r"(?P<f>index|middle|ring|pinky)_dip(?:_fe)?": (None, 3)}),
+    # torchhand's own hand (hand.xml of a result, exported as BVH): the palm is the wrist
+    _Naming("torchhand", {"wrist": r"(?:(?P<s>right|left|r|l)_)?palm"},
+            named={r"thumb_metacarpal": ("thumb", 1), r"thumb_proximal": ("thumb", 2), r"thumb_distal": ("thumb", 3),
+                   r"(?P<f>index|middle|ring|little)_metacarpal": (None, 0),
+                   r"(?P<f>index|middle|ring|little)_proximal": (None, 1),
+                   r"(?P<f>index|middle|ring|little)_middle": (None, 2),
+                   r"(?P<f>index|middle|ring|little)_distal": (None, 3)}),
 )
 _BY_NAME = {n.name: n for n in _NAMINGS}
 _BY_NAME["cmu"] = _BY_NAME["mblab"]
