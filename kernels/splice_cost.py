@@ -35,11 +35,12 @@ import math
 
 import torch
 
-__all__ = ["smooth_derivatives", "sign_features", "signs_from_derivatives", "window_yaw", "sign_cost",
+__all__ = ["gaussian_smooth", "smooth_derivatives", "sign_features", "signs_from_derivatives", "window_yaw",
+           "sign_cost",
            "sign_cost_yaw", "palm_cost", "forearm_hand_vectors"]
 
 
-def _gaussian_smooth(x: torch.Tensor, sigma_frames: float) -> torch.Tensor:
+def gaussian_smooth(x: torch.Tensor, sigma_frames: float) -> torch.Tensor:
     """Gaussian smoothing along dim 1 of (B, T, ...) with edge replication; identity when sigma < 0.3 frames."""
     if sigma_frames < 0.3:
         return x
@@ -66,7 +67,7 @@ def smooth_derivatives(x: torch.Tensor, fps: float, sigma: float = 0.05) -> tupl
         v: (B, T, K, 3), metres/second; a: (B, T, K, 3), metres/second^2 (central differences, one-sided at the ends)
     """
     _check_markers(x, "x")
-    xs = _gaussian_smooth(x, sigma * fps)
+    xs = gaussian_smooth(x, sigma * fps)
 
     def diff(y: torch.Tensor) -> torch.Tensor:
         if y.shape[1] < 2:

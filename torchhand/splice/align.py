@@ -42,11 +42,12 @@ import torch
 
 from ..errors import InputValueError
 from torchhand.kernels.dtw import dtw
-from torchhand.kernels.splice_cost import (forearm_hand_vectors, palm_cost, sign_cost, sign_cost_yaw,
+from torchhand.kernels.splice_cost import (forearm_hand_vectors, gaussian_smooth, palm_cost, sign_cost,
+                                           sign_cost_yaw,
                                            sign_features, smooth_derivatives, window_yaw)
 from torchhand.kernels.status import SolverStatus
 
-__all__ = ["SpliceSettings", "Alignment", "align", "band_width", "path_median", "fit_yaw", "fit_rotation",
+__all__ = ["SpliceSettings", "Alignment", "align", "band_width", "path_median", "fit_rotation",
            "hand_in_forearm", "hold_mask"]
 
 
@@ -172,22 +173,6 @@ def path_median(path: torch.Tensor, n: int) -> torch.Tensor:
     return torch.where(ok, mid, torch.zeros((), dtype=torch.float64, device=path.device))
 
 
-def fit_yaw(P: torch.Tensor, Q: torch.Tensor) -> torch.Tensor:
-    """Kovar's yaw (Eq. 7 over every point) that rotates Q onto P about z, for corresponding points.
-
-    Args:
-        P, Q: (B, N, 3) corresponding points
-
-    Returns:
-        (B,) radians
-    """
-    Pc = P - P.mean(1, keepdim=True)
-    Qc = Q - Q.mean(1, keepdim=True)
-    num = (Pc[..., 1] * Qc[..., 0] - Pc[..., 0] * Qc[..., 1]).sum(1)
-    den = (Pc[..., 0] * Qc[..., 0] + Pc[..., 1] * Qc[..., 1]).sum(1)
-    return torch.atan2(num, den)
-
-
 def fit_rotation(P: torch.Tensor, Q: torch.Tensor) -> torch.Tensor:
     """The proper rotation R minimising sum |(P - mean P) - R (Q - mean Q)|^2 (Kabsch), (B, 3, 3).
 
@@ -263,7 +248,9 @@ def _pass2_signal(u: torch.Tensor, min_spread_deg: float) -> tuple[torch.Tensor,
 
 
 def _minimal_rotation_palm(fp, hp, fq, hq) -> torch.Tensor:
-    """Eq. 9 with the minimal rotation taking each f' onto f: (B, n, k) radians. fp, hp: (B, n, 3); fq, hq: (B, k, 3)."""
+    """Eq. 9 with the minimal rotation taking each f' onto f: (B, n, k) radians.
+
+    fp, hp: (B, n, 3); fq, hq: (B, k, 3)."""
     a = (fp / fp.norm(dim=-1, keepdim=True).clamp_min(1e-12)).unsqueeze(2)          # (B, n, 1, 3)
     b = (fq / fq.norm(dim=-1, keepdim=True).clamp_min(1e-12)).unsqueeze(1)          # (B, 1, k, 3)
     h = hq.unsqueeze(1).expand(-1, a.shape[1], -1, -1)                              # (B, n, k, 3)
@@ -274,18 +261,6 @@ def _minimal_rotation_palm(fp, hp, fq, hq) -> torch.Tensor:
     hp_ = hp.unsqueeze(2)
     cos = (hp_ * Rh).sum(-1) / (hp_.norm(dim=-1) * Rh.norm(dim=-1)).clamp_min(1e-12)
     return torch.acos(cos.clamp(-1, 1))
-
-
-def _gauss_smooth_1d(x: torch.Tensor, sigma_frames: float) -> torch.Tensor:
-    """(B, n) -> (B, n), Gaussian with replicated edges."""
-    if sigma_frames < 0.3 or x.shape[1] < 3:
-        return x
-    r = max(1, int(math.ceil(3 * sigma_frames)))
-    t = torch.arange(-r, r + 1, dtype=x.dtype, device=x.device)
-    k = torch.exp(-0.5 * (t / sigma_frames) ** 2)
-    k = (k / k.sum()).view(1, 1, -1)
-    y = torch.nn.functional.pad(x.unsqueeze(1), (r, r), mode="replicate")
-    return torch.nn.functional.conv1d(y, k).squeeze(1)
 
 
 def _features(markers: torch.Tensor, shoulder, trunk) -> torch.Tensor:
@@ -353,9 +328,9 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
         K = 12
         yaws = torch.arange(K, dtype=body.dtype, device=dev) * (2 * math.pi / K)
         QK = torch.einsum("kij,btlj->bktli", _rot_z(yaws), Q).reshape(B * K, m, 4, 3)
-        PK = P.unsqueeze(1).expand(B, K, n, 4, 3).reshape(B * K, n, 4, 3)
-        CK = sign_cost(sign_features(PK, body_fps, s.sigma, s.dead_zone),
-                       sign_features(QK, hand_fps, s.sigma, s.dead_zone))
+        fp = sign_features(P, body_fps, s.sigma, s.dead_zone)
+        fpK = fp.unsqueeze(1).expand(B, K, *fp.shape[1:]).reshape(B * K, *fp.shape[1:])
+        CK = sign_cost(fpK, sign_features(QK, hand_fps, s.sigma, s.dead_zone))
         rK = dtw(CK.double(), band=W1, anchors=_repeat_anchors(anchors, K), tolerance=s.tolerance,
                  diagonal=s.tie_break)
         best = rK.distance.view(B, K).argmin(1)                                     # (B,)
@@ -418,12 +393,24 @@ def align(body: torch.Tensor, hand: torch.Tensor, *, body_fps: float, hand_fps: 
     hand_frame = torch.cummax(hand_frame, dim=1).values
     if s.hold_fraction > 0:
         hand_frame = _straighten_holds(hand_frame, P, body_fps, s, m)
-    hand_frame = _gauss_smooth_1d(hand_frame, s.smooth * body_fps).clamp(0, m - 1)
+    hand_frame = gaussian_smooth(hand_frame, s.smooth * body_fps).clamp(0, m - 1)
     hand_frame = _honour_anchors(hand_frame, anchors, s.tolerance, m)
     hand_frame = torch.cummax(hand_frame, dim=1).values
     return Alignment(hand_frame=hand_frame, hand_time=hand_frame / hand_fps, map1=map1, path1=res1.path,
                      path2=path2, cost1=C1.float(), cost2=cost2, status=res1.status, pass2_used=used,
                      pass2_note=tuple(notes), yaw=yaw, band1_frames=r1, band2_frames=r2 * 1.0)
+
+
+def _runs(flags: list) -> list[tuple[int, int]]:
+    """First and last index of every run of True in ``flags``."""
+    out, start = [], None
+    for k, f in enumerate(flags + [False]):
+        if f and start is None:
+            start = k
+        elif not f and start is not None:
+            out.append((start, k - 1))
+            start = None
+    return out
 
 
 def hold_mask(P: torch.Tensor, fps: float, settings: SpliceSettings) -> torch.Tensor:
@@ -435,18 +422,9 @@ def hold_mask(P: torch.Tensor, fps: float, settings: SpliceSettings) -> torch.Te
     need = max(1, int(round(settings.min_hold * fps)))
     out = torch.zeros_like(slow)
     for b in range(slow.shape[0]):                 # run lengths on the host: n is a few thousand at most
-        row = slow[b].tolist()
-        i = 0
-        while i < len(row):
-            if row[i]:
-                j = i
-                while j + 1 < len(row) and row[j + 1]:
-                    j += 1
-                if j - i + 1 >= need:
-                    out[b, i:j + 1] = True
-                i = j + 1
-            else:
-                i += 1
+        for i, j in _runs(slow[b].tolist()):
+            if j - i + 1 >= need:
+                out[b, i:j + 1] = True
     return out
 
 
@@ -459,21 +437,12 @@ def _straighten_holds(hand_frame: torch.Tensor, P: torch.Tensor, fps: float, set
     out = hand_frame.clone()
     n = hand_frame.shape[1]
     for b in range(hold.shape[0]):
-        row = hold[b].tolist()
-        i = 0
-        while i < n:
-            if not row[i]:
-                i += 1
-                continue
-            j = i
-            while j + 1 < n and row[j + 1]:
-                j += 1
+        for i, j in _runs(hold[b].tolist()):
             x0, y0 = (i - 1, float(hand_frame[b, i - 1])) if i > 0 else (0, 0.0)
             x1, y1 = (j + 1, float(hand_frame[b, j + 1])) if j + 1 < n else (n - 1, float(m - 1))
             if x1 > x0:
                 xs = torch.arange(i, j + 1, dtype=hand_frame.dtype, device=hand_frame.device)
                 out[b, i:j + 1] = y0 + (y1 - y0) * (xs - x0) / (x1 - x0)
-            i = j + 1
     return out
 
 

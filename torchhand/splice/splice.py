@@ -5,12 +5,12 @@ in time (:func:`torchhand.splice.align.align`), resamples the hand clip's finger
 ``wrist="hand"``, its wrist) at the aligned hand time of every body frame, carries those rotations onto the
 body's finger joints (:mod:`torchhand.splice.retarget`, with each segment's rest direction lined up, so rigs whose
 rest poses differ, such as ManipNet's thumb folded across the palm, still show the source's finger directions; a
-body without fingers first gets the hand rig's finger joints under its wrist) and returns the body clip with only those channels changed, at the body's frame rate
-and with the body's hierarchy.
+body without fingers first gets the hand rig's finger joints under its wrist) and returns the body clip with only
+those channels changed, at the body's frame rate and with the body's hierarchy.
 
 Matching points are pairs (body frame, hand frame) (0-based); with ``tolerance`` T (hand frames, Eq. 5) the
-path passes within T of each. They are honoured by both passes; the final smoothing of the time map may move
-them by up to a frame.
+path passes within T of each. They are honoured by both passes and the final time map is corrected to show
+hand frame y_k (within T) at body frame x_k (``torchhand.splice.align``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from ..bvh import BVHClip
 from ..errors import InputValueError
 from torchhand.kernels.status import SolverStatus
 from .align import Alignment, SpliceSettings, align
-from .markers import UNITS, ArmJoints, Markers, guess_units, guess_up_axis, virtual_markers
+from .markers import ArmJoints, guess_units, guess_up_axis, virtual_markers
 from .retarget import insert_fingers, retarget_fingers
 from .retime import local_rotations, retime_motion, rotations_to_channels
 from .rigs import Rig, detect_rig
