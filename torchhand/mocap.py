@@ -47,7 +47,7 @@ import torch
 from .bvh import BVHClip, read_bvh
 from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError
 from .objects import RigidObject, load_object
-from .scene import SIDES, Environment, HandTrack, Scene
+from .scene import SIDES, Environment, HandTrack, MocapSource, Scene
 
 __all__ = ["import_mocap_scene", "manipnet_scene", "hand_frame_rotation", "convert_transforms"]
 
@@ -269,12 +269,14 @@ def import_mocap_scene(
         obj_pose = convert_transforms(oclip.global_transforms(frames)[:, oj], **conv)
     else:
         obj_pose = convert_transforms(raw_obj[frames], **conv)
-    hands = []
+    hands, wrists, rotations = [], [], []
     for s in SIDES:
         if s not in sources:
             continue
         clip, j = sources[s]
         R_fix, length, _ = hand_frame_rotation(clip, j, s, handedness=handedness, up_axis=up_axis)
+        wrists.append((s, str(Path(clip.path).resolve()), clip.names[j]))
+        rotations.append((s, np.asarray(R_fix, dtype=np.float64)))
         fix = torch.eye(4, dtype=torch.float64)
         fix[:3, :3] = torch.as_tensor(R_fix)
         wrist = convert_transforms(clip.global_transforms(frames)[:, j], **conv) @ fix
@@ -284,8 +286,12 @@ def import_mocap_scene(
     tick(f"loading {Path(object_mesh).name}")
     obj = _load_mesh(Path(object_mesh), mass, density, mesh_scale, mirror_mesh)
     environment = _environment(table_height, table_friction, obj, obj_pose)
+    source = MocapSource(kind="body" if body_bvh is not None else "hand", wrists=tuple(wrists), fps=src_fps,
+                         frames=F_obj, first_frame=float(start), units_scale=units_scale, up_axis=up_axis,
+                         handedness=handedness, hand_rotation=tuple(rotations))
     scene = Scene(name=name or Path(object_mesh).stem, object=obj, object_pose=obj_pose, fps=src_fps,
-                  hands=tuple(hands), friction=friction, environment=environment, description=description)
+                  hands=tuple(hands), friction=friction, environment=environment, description=description,
+                  source=source)
     if fps is not None and float(fps) != src_fps:
         tick("resampling")
         scene = scene.resample(fps)

@@ -37,6 +37,7 @@ __all__ = [
     "FORMAT_VERSION",
     "HandTrack",
     "Environment",
+    "MocapSource",
     "Scene",
     "EnvContacts",
     "environment_contacts",
@@ -48,8 +49,9 @@ __all__ = [
 SIDES = ("right", "left")
 """Hand sides, in the order hands are stored in a scene file."""
 
-FORMAT_VERSION = 1
-"""Version of the scene directory format written by :meth:`Scene.export` (``docs/scene_format.md``)."""
+FORMAT_VERSION = 2
+"""Version of the scene directory format written by :meth:`Scene.export` (``docs/scene_format.md``). Version 2
+added the optional ``[source]`` table; version-1 files still load."""
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 """Gravity, (3,), world, m/s^2."""
@@ -128,6 +130,73 @@ class Environment:
         object.__setattr__(self, "friction", _check_number(self.friction, "Environment.friction", low=0.0))
 
 
+@dataclass(frozen=True)
+class MocapSource:
+    """Where the wrist tracks of a scene imported from motion capture came from (``scene import-mocap``), so that
+    results can be written back onto the captured file (``torchhand export --onto``).
+
+    Fields
+        kind: "body" (a body BVH with a wrist joint per side) or "hand" (a hand BVH per side)
+        wrists: ``(side, file, joint)`` per hand: the BVH file (absolute path at import time) and its wrist joint
+        fps: the source's frame rate, 1/s
+        frames: the number of frames of the source file
+        first_frame: the source frame (fractional after resampling) at the scene's frame 0
+        units_scale: metres per source unit; up_axis: "y" or "z"; handedness: "right" or "left"
+        hand_rotation: ``(side, R_fix)`` per hand: the fixed rotation (3, 3), row-major nested tuples, from the
+            wrist joint's local axes to the hand frame (:func:`torchhand.mocap.hand_frame_rotation`)
+
+    The scene's frame ``k`` is the source's frame ``first_frame + k * fps / scene.fps``.
+    """
+
+    kind: str
+    wrists: tuple
+    fps: float
+    frames: int
+    first_frame: float = 0.0
+    units_scale: float = 1.0
+    up_axis: str = "y"
+    handedness: str = "right"
+    hand_rotation: tuple = ()
+
+    def __post_init__(self):
+        if self.kind not in ("body", "hand"):
+            raise InputValueError(f"MocapSource.kind: expected 'body' or 'hand', got {self.kind!r}")
+        if self.up_axis not in ("y", "z"):
+            raise InputValueError(f"MocapSource.up_axis: expected 'y' or 'z', got {self.up_axis!r}")
+        if self.handedness not in ("right", "left"):
+            raise InputValueError(f"MocapSource.handedness: expected 'right' or 'left', got {self.handedness!r}")
+        _check_number(self.fps, "MocapSource.fps", low=0.0, strict=True)
+        _check_number(self.units_scale, "MocapSource.units_scale", low=0.0, strict=True)
+        _check_number(self.first_frame, "MocapSource.first_frame", low=0.0)
+        wrists = tuple(tuple(w) for w in self.wrists)
+        if not wrists or any(len(w) != 3 or w[0] not in SIDES for w in wrists):
+            raise InputValueError(f"MocapSource.wrists: expected (side, file, joint) per hand, got {self.wrists!r}")
+        object.__setattr__(self, "wrists", wrists)
+        rot = tuple((side, tuple(tuple(float(v) for v in row) for row in R)) for side, R in self.hand_rotation)
+        if any(np.shape(R) != (3, 3) for _, R in rot):
+            raise ShapeError("MocapSource.hand_rotation: expected a (3, 3) rotation per side")
+        object.__setattr__(self, "hand_rotation", rot)
+
+    def wrist(self, side: str) -> tuple[str, str]:
+        """``(file, joint)`` of ``side``'s wrist; :class:`UnknownNameError` when the source has no such hand."""
+        for s, f, j in self.wrists:
+            if s == side:
+                return f, j
+        raise UnknownNameError(f"side: the mocap source has no {side!r} wrist; wrists: "
+                               f"{', '.join(w[0] for w in self.wrists)}")
+
+    def rotation(self, side: str) -> np.ndarray:
+        """``R_fix`` of ``side``, (3, 3); the identity when it was not recorded."""
+        for s, R in self.hand_rotation:
+            if s == side:
+                return np.array(R, dtype=np.float64)
+        return np.eye(3)
+
+    def shifted(self, frames: float) -> "MocapSource":
+        """The same source with the scene starting ``frames`` source frames later."""
+        return dataclasses.replace(self, first_frame=self.first_frame + float(frames))
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     """An object trajectory, one or two wrist trajectories and their environment.
@@ -142,6 +211,7 @@ class Scene:
         environment: table and its friction, Environment
         gravity: gravitational acceleration, (3,), world, m/s^2, default (0, 0, -9.81)
         description: free text, str
+        source: the motion capture the wrists came from (``scene import-mocap``), :class:`MocapSource` or None
 
     ``T``, ``dt`` and ``duration`` are derived. Update with ``dataclasses.replace``; tensor fields follow
     :mod:`torchhand._tree` (``tree_to`` moves them to a device).
@@ -156,6 +226,7 @@ class Scene:
     environment: Environment = field(default_factory=Environment)
     gravity: torch.Tensor = field(default_factory=_default_gravity)
     description: str = ""
+    source: MocapSource | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -185,6 +256,8 @@ class Scene:
             raise ShapeError(f"Scene.gravity: expected shape (3,), got {tuple(g.shape)}")
         if not isinstance(self.description, str):
             raise InputTypeError(f"Scene.description: expected a str, got {type(self.description).__name__}")
+        if self.source is not None and not isinstance(self.source, MocapSource):
+            raise InputTypeError(f"Scene.source: expected a MocapSource or None, got {type(self.source).__name__}")
 
     # -- derived ------------------------------------------------------------------------------------------------
 
@@ -249,7 +322,8 @@ class Scene:
             raise InputValueError(f"start, stop: expected 0 <= start < stop <= T = {self.T}, got {start}, {stop}")
         s = slice(int(start), int(stop))
         hands = tuple(dataclasses.replace(h, wrist_pose=h.wrist_pose[s].clone()) for h in self.hands)
-        return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands)
+        source = None if self.source is None else self.source.shifted(start * self.source.fps / self.fps)
+        return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands, source=source)
 
     def resample(self, fps: float) -> "Scene":
         """The same motion sampled at ``fps``: positions interpolated linearly, rotations by slerp.

@@ -22,7 +22,7 @@ import torch
 from .conventions import check_transforms
 from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError
 from .objects import load_object
-from .scene import DEFAULT_GRAVITY, FORMAT_VERSION, SIDES, Environment, HandTrack, Scene
+from .scene import DEFAULT_GRAVITY, FORMAT_VERSION, SIDES, Environment, HandTrack, MocapSource, Scene
 
 __all__ = ["load_scene_dir", "export_scene_dir"]
 
@@ -94,10 +94,22 @@ def _write_files(scene: Scene, out: Path) -> None:
                         "table_height": float(scene.environment.table_height),
                         "friction": float(scene.environment.friction)},
     }
+    if scene.source is not None:
+        doc["source"] = _source_doc(scene.source)
     text = tomli_w.dumps(doc)
     for h in sorted(scene.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
         text += "\n[[hands]]\n" + tomli_w.dumps({"side": h.side, "length": float(h.length)})
     (out / _SCENE_TOML).write_text(text, encoding="utf-8")
+
+
+def _source_doc(src: MocapSource) -> dict:
+    rot = dict(src.hand_rotation)
+    return {"kind": src.kind, "fps": float(src.fps), "frames": int(src.frames),
+            "first_frame": float(src.first_frame), "units_scale": float(src.units_scale), "up_axis": src.up_axis,
+            "handedness": src.handedness,
+            "wrists": [{"side": side, "file": file, "joint": joint}
+                       | ({"rotation": [list(r) for r in rot[side]]} if side in rot else {})
+                       for side, file, joint in src.wrists]}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -105,12 +117,17 @@ def _write_files(scene: Scene, out: Path) -> None:
 
 
 _SCHEMA = {
-    "": {"format_version", "scene", "object", "environment", "hands"},
+    "": {"format_version", "scene", "object", "environment", "hands", "source"},
     "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
     "environment": {"table", "table_height", "friction"},
     "hands": {"side", "length"},
+    "source": {"kind", "fps", "frames", "first_frame", "units_scale", "up_axis", "handedness", "wrists"},
+    "source.wrists": {"side", "file", "joint", "rotation"},
 }
+
+READ_VERSIONS = (1, 2)
+"""Scene format versions this reader accepts (version 1 has no ``[source]`` table)."""
 
 
 class _Reader:
@@ -184,9 +201,9 @@ def load_scene_dir(directory: Path) -> Scene:
     r = _Reader(toml_path, doc)
     r.unknown(doc, "")
     version = r.get(doc, "", "format_version", "int")
-    if version != FORMAT_VERSION:
+    if version not in READ_VERSIONS:
         raise FileFormatError(f"{toml_path}: format_version {version} is not supported (this reader: "
-                              f"{FORMAT_VERSION})")
+                              f"{', '.join(map(str, READ_VERSIONS))}; a newer file needs a newer torchhand)")
     sc, ob, env = r.table("scene"), r.table("object"), r.table("environment", required=False)
 
     fps = r.positive(sc, "scene", "fps")
@@ -241,13 +258,39 @@ def load_scene_dir(directory: Path) -> Scene:
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
     hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length) for s, length in hand_specs)
     try:
+        source = _read_source(r, doc) if "source" in doc else None
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
                       friction=friction, environment=environment,
                       gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
-                      description=description)
+                      description=description, source=source)
         return scene.validate()
     except TorchhandError as err:  # name the file for errors found by the dataclass checks
         raise type(err)(f"{toml_path}: {err}") from None
+
+
+def _read_source(r: _Reader, doc: dict) -> MocapSource:
+    src = r.table("source")
+    wrists_doc = src.get("wrists")
+    if not isinstance(wrists_doc, list) or not wrists_doc or not all(isinstance(w, dict) for w in wrists_doc):
+        raise FileFormatError(f"{r.path}: [source] needs one or more [[source.wrists]] tables")
+    wrists, rotations = [], []
+    for i, w in enumerate(wrists_doc):
+        r.unknown(w, "source.wrists")
+        where = f"source.wrists[{i}]"
+        side = r.get(w, where, "side", "str")
+        wrists.append((side, r.get(w, where, "file", "str"), r.get(w, where, "joint", "str")))
+        if "rotation" in w:
+            R = np.asarray(w["rotation"], dtype=np.float64) if isinstance(w["rotation"], list) else None
+            if R is None or R.shape != (3, 3) or not np.isfinite(R).all():
+                raise FileFormatError(f"{r.path}: field {where}.rotation: expected 3 rows of 3 numbers")
+            rotations.append((side, R))
+    return MocapSource(kind=r.get(src, "source", "kind", "str"), wrists=tuple(wrists),
+                       fps=r.positive(src, "source", "fps"), frames=r.get(src, "source", "frames", "int"),
+                       first_frame=float(r.get(src, "source", "first_frame", "number", 0.0)),
+                       units_scale=r.positive(src, "source", "units_scale", 1.0),
+                       up_axis=r.get(src, "source", "up_axis", "str", "y"),
+                       handedness=r.get(src, "source", "handedness", "str", "right"),
+                       hand_rotation=tuple(rotations))
 
 
 def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:

@@ -33,10 +33,15 @@ def _to_np(x) -> np.ndarray:
     return x.detach().cpu().double().numpy()
 
 
-def write_fixture_result(root: Path, scene_name: str = "box-turn", frames: int = 10, solutions: int = 2) -> Path:
-    """Write a result directory at ``root`` and return it."""
+def write_fixture_result(root: Path, scene_name: str = "box-turn", frames: int = 10, solutions: int = 2, *,
+                         scene=None, q_ramp: float = 0.0) -> Path:
+    """Write a result directory at ``root`` and return it.
+
+    scene: a :class:`torchhand.scene.Scene` to use instead of the built-in ``scene_name`` (cut to ``frames``)
+    q_ramp: radians added to the flexion joints linearly over the frames (0: a constant pose per solution)
+    """
     root = Path(root)
-    scene = torchhand.load_scene(scene_name).with_frames(0, frames)
+    scene = (torchhand.load_scene(scene_name) if scene is None else scene).with_frames(0, frames)
     (root / "solutions").mkdir(parents=True, exist_ok=True)
     scene.export(root / "scene", overwrite=True)
     hands = {t.side: torchhand.default_hand(t.side, t.length) for t in scene.hands}
@@ -65,6 +70,7 @@ def write_fixture_result(root: Path, scene_name: str = "box-turn", frames: int =
             q = hand.q_rest.expand(frames, -1).clone()
             flex = hand.flexion_joints[hand.flexion_joints >= 0]
             q[:, flex] += 0.08 * s
+            q[:, flex] += torch.linspace(0.0, q_ramp, frames, dtype=q.dtype)[:, None]
             root_pose = t.wrist_pose
             links = hand.forward_kinematics(q, root_pose)
             tip_T = links[:, hand.distal_link]  # (T, F, 4, 4)

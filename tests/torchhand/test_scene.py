@@ -392,7 +392,7 @@ def test_load_malformed_toml(scene_dir):
     ("friction = 0.8", "friction = -0.2", InputValueError, "scene.friction"),
     ("mass = 1.0", "mass = 0.0", InputValueError, "object.mass"),
     ("mass = 1.0", "mass = 1.0\ndensity = 3.0", FileFormatError, "object.density"),
-    ("format_version = 1", "format_version = 2", FileFormatError, "format_version 2"),
+    ("format_version = 2", "format_version = 3", FileFormatError, "format_version 3"),
     ("[environment]", "[environment]\ncolour = 1", FileFormatError, "colour"),
     ('side = "left"', 'side = "right"', InputValueError, "distinct"),
     ('side = "left"', 'side = "middle"', InputValueError, "hands[1].side"),
@@ -468,3 +468,29 @@ def test_smoothing_removes_jitter_and_keeps_slow_motion():
     with pytest.raises(InputValueError, match="sigma"):
         builtin_scene("box-turn").smoothed(-1.0)
     assert builtin_scene("box-turn").smoothed(0.0).object_pose.shape == (builtin_scene("box-turn").T, 4, 4)
+
+
+def test_version_1_scene_still_loads(scene_dir):
+    edit_toml(scene_dir, "format_version = 2", "format_version = 1")
+    scene = load_scene(scene_dir)
+    assert scene.T > 0 and scene.source is None
+
+
+def test_mocap_source_round_trip_and_frame_shift(scenes, tmp_path):
+    from torchhand.scene import MocapSource
+
+    R = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    src = MocapSource(kind="body", wrists=(("right", "/data/body.bvh", "RightHand"),), fps=120.0, frames=900,
+                      first_frame=10.0, units_scale=0.01, up_axis="y", handedness="right",
+                      hand_rotation=(("right", R),))
+    scene = dataclasses.replace(scenes["box-turn"], source=src)
+    back = load_scene(scene.export(tmp_path / "s"))
+    assert back.source == src
+    np.testing.assert_array_equal(back.source.rotation("right"), R)
+    # scene frame k is source frame first_frame + k * fps_src / fps: cutting frames moves the start
+    cut = back.with_frames(3, 10)
+    assert cut.source.first_frame == pytest.approx(10.0 + 3 * 120.0 / scene.fps)
+    assert cut.resample(15.0).source.first_frame == cut.source.first_frame
+    edit_toml(tmp_path / "s", 'kind = "body"', 'kind = "arm"')
+    with pytest.raises(InputValueError, match="kind"):
+        load_scene(tmp_path / "s")
