@@ -26,8 +26,8 @@ FIRST = 10
 """The scene starts at this source frame and stops 10 frames before the end."""
 
 
-def body_result(root: Path, body: str, *, q_ramp: float = 0.9) -> tuple[Path, Path]:
-    """(result directory, body BVH path) for ``body`` in :data:`BODIES`."""
+def body_result(root: Path, body: str, *, q_ramp: float = 0.9, fps: float | None = None) -> tuple[Path, Path]:
+    """(result directory, body BVH path) for ``body`` in :data:`BODIES`; ``fps`` resamples the scene."""
     from torchhand.bvh import read_bvh
     from torchhand.mocap import import_mocap_scene
 
@@ -43,6 +43,6 @@ def body_result(root: Path, body: str, *, q_ramp: float = 0.9) -> tuple[Path, Pa
     trimesh.creation.box((0.05, 0.05, 0.05)).export(root / "box.obj")
     scene = import_mocap_scene(object_mesh=root / "box.obj", body_bvh=path, wrist_joint=wrist,
                                object_npz=root / "object.npz", units_scale=units, mesh_scale=1.0, up_axis=up,
-                               frame_range=(FIRST, clip.num_frames - 10), name=f"{body}-box")
+                               frame_range=(FIRST, clip.num_frames - 10), fps=fps, name=f"{body}-box")
     out = write_fixture_result(root / "result", scene=scene, frames=scene.T, solutions=1, q_ramp=q_ramp)
     return out, path

@@ -196,3 +196,33 @@ def test_onto_refuses_another_body(onto, tmp_path, capsys):
     other = shared_path("mocap", *BODIES["cmu" if name == "mixamo" else "mixamo"][0])
     assert main(["export", str(result), "--out", str(tmp_path / "o"), "--onto", str(other), "--no-progress"]) == 2
     assert "the scene was imported from" in capsys.readouterr().err
+
+
+def test_onto_a_resampled_scene(tmp_path):
+    """A scene resampled from 30 to 20 fps: source frame 10 + 1.5 k is scene frame k; the solution's angles are
+    interpolated to the source frames, and on the frames where both clocks meet the fingertips agree."""
+    result, body_path = body_result(tmp_path, "mixamo", fps=20.0)
+    out = tmp_path / "out"
+    assert main(["export", str(result), "--out", str(out), "--onto", str(body_path), "--no-progress"]) == 0
+    res = load_result(result)
+    assert res.scene.fps == 20.0 and res.scene.source.first_frame == FIRST
+    sol, model = res.solution(0), res.hand_models["right"]
+    want = fingertips_world(model, sol.q, sol.root_pose)
+    done = read_bvh(out / "body_with_fingers.bvh")
+    _, _, units, up = BODIES["mixamo"]
+    G = convert_transforms(done.global_transforms(), units_scale=units, up_axis=up).numpy()
+    from torchhand.splice.rigs import detect_rig
+
+    tips = detect_rig(done).tips["right"]
+    ks = np.arange(2, sol.T - 2, 2)                                       # scene frames on whole source frames
+    got = np.stack([G[FIRST + (3 * ks) // 2, tips[f], :3, 3] for f in ("thumb", "index", "middle", "ring",
+                                                                          "pinky")], axis=1)
+    assert np.linalg.norm(got - want[ks], axis=-1).max() < 0.005
+
+
+def test_export_names_a_splice_output(tmp_path, capsys):
+    (tmp_path / "spliced").mkdir()
+    (tmp_path / "spliced" / "spliced.bvh").write_text("HIERARCHY\n")
+    assert main(["export", str(tmp_path / "spliced"), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "splice output" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
