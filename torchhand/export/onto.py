@@ -15,16 +15,20 @@ The body's finger joints are then driven by that hand through the splicing joint
 (:func:`torchhand.splice.retarget.retarget_fingers` with ``align_rest=True``: each finger segment points where the
 solution's does relative to the hand, in the body rig's own rest pose, twist about the segment from the minimal
 rotation); a body without finger joints on that side first gets the hand's fingers inserted under its wrist
-(:func:`torchhand.splice.retarget.insert_fingers`). Only finger joints' rotation channels change, and only in the
-source frames the scene covers (``first_frame .. first_frame + (T - 1) fps_src / fps``, the solution's joint angles
-interpolated linearly to the source frames); every other channel and frame keeps the captured value. Within
-``blend`` seconds of each end of the segment (ends that are not the clip's own ends) the rotations ramp from the
-captured ones to the solution's (slerp, smoothstep weight), so the finger motion joins without a jump.
+(:func:`torchhand.splice.retarget.insert_fingers`). The body rig's bones are not the scene hand's bones (a Mixamo
+finger is longer, its knuckle elsewhere), so direction matching alone leaves the fingertips 1-3 cm from the
+solution's, and contacts would be lost; each finger chain is therefore bent afterwards, FABRIK from the retargeted
+pose with the chain's base fixed, until its tip reaches the solution's fingertip, and every segment is swung onto its
+new direction by the smallest rotation (twist kept). A tip beyond the chain's reach stops at full extension.
 
-Deviations and limits, stated: the wrist is the body's, not the solution's ``root_pose`` (they agree unless the
-synthesis smoothed the wrist track, ``synthesize --smooth``; the report gives the largest wrist distance);
-fingertip positions agree with the solution's only as far as the body's finger bones have the scene hand's lengths
-(the report gives the fingertip distances per frame).
+Only finger joints' rotation channels change, and only in the source frames the scene covers (``first_frame ..
+first_frame + (T - 1) fps_src / fps``, the solution's joint angles interpolated linearly to the source frames);
+every other channel and frame keeps the captured value. Within ``blend`` seconds of each end of the segment (ends
+that are not the clip's own ends) the rotations ramp from the captured ones to the solution's (slerp, smoothstep
+weight), so the finger motion joins without a jump; the fingertips reach the solution's only outside these ramps.
+
+The wrist is the body's, not the solution's ``root_pose``: they agree unless the synthesis smoothed the wrist track
+(``synthesize --smooth``). The report gives the remaining fingertip distances per finger.
 """
 
 from __future__ import annotations
