@@ -29,8 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--contacts", action="store_true", help="put contact points into the glb as small spheres")
     p.add_argument("--onto", metavar="BODY.bvh", default=None,
                    help="the body BVH the scene was imported from: write body_with_fingers.bvh")
-    p.add_argument("--blend", type=float, default=0.1, metavar="SEC",
-                   help="with --onto: seconds of blend from the captured fingers at the segment's ends (default 0.1)")
+    p.add_argument("--blend", type=float, default=0.2, metavar="SEC",
+                   help="with --onto: seconds of blend from the captured fingers at the segment's ends (default 0.2)")
     p.add_argument("--body-map", default="auto", metavar="NAME|FILE",
                    help="with --onto: the body's rig (auto, a rig name or a TOML joint map; docs/splice_rigs.md)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier export in DIR")

@@ -78,7 +78,7 @@ def prepare_export_dir(out, *, overwrite: bool = False) -> tuple[Path, list[str]
 
 
 def export_result(result_dir, out, *, solutions: str | None = "all", formats=FORMATS, units: str = "cm",
-                  up: str = "y", contacts: bool = False, onto=None, blend: float = 0.1, body_rig: str = "auto",
+                  up: str = "y", contacts: bool = False, onto=None, blend: float = 0.2, body_rig: str = "auto",
                   overwrite: bool = False, progress=None) -> ExportReport:
     """Export solutions of the result directory ``result_dir`` into ``out`` (module docstring).
 

@@ -48,7 +48,7 @@ from ..splice.retime import local_rotations, rotations_to_channels
 from ..splice.rigs import detect_rig
 from .skeleton import hand_skeleton, skeleton_channels, skeleton_motion
 
-__all__ = ["OntoBody", "fingers_onto_body", "hand_in_wrist_frame"]
+__all__ = ["OntoBody", "fingers_onto_body", "hand_in_wrist_frame", "blend_weights"]
 
 _MIRROR = np.diag([-1.0, 1.0, 1.0])
 
@@ -93,7 +93,7 @@ def hand_in_wrist_frame(model, q: np.ndarray, R_fix: np.ndarray, units_scale: fl
     return place(H), place(H_rest), M / units_scale
 
 
-def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.1, body_rig: str = "auto",
+def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.2, body_rig: str = "auto",
                       progress=None) -> OntoBody:
     """Write solution ``index`` of ``result`` onto ``body`` (module docstring).
 
@@ -166,11 +166,13 @@ def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.1, 
                                  "_tips": targets, "_names": list(model.finger_names)}
     captured = local_rotations(clip, motion[frames])
     written = local_rotations(clip, seg)
-    blended = {d: _blend(captured[:, d], written[:, d], frames, clip, blend) for d in sorted(set(changed))}
-    motion[frames] = rotations_to_channels(clip, motion[frames], blended)
+    w = blend_weights(frames, clip.num_frames, clip.fps, blend)
+    blended = {d: _blend(captured[:, d], written[:, d], w) for d in sorted(set(changed))}
+    before = motion[frames[0] - 1] if frames[0] > 0 else None
+    motion[frames] = rotations_to_channels(clip, motion[frames], blended, continue_from=before)
     out = dataclasses.replace(clip.with_motion(motion), path=body.path)
     for side, info in report["sides"].items():
-        info.update(_tip_report(out, brig, side, info.pop("_names"), info.pop("_tips"), frames, src, blend))
+        info.update(_tip_report(out, brig, side, info.pop("_names"), info.pop("_tips"), frames, src, w == 1.0))
     return OntoBody(clip=out, segment={s: (int(frames[0]), int(frames[-1])) for s in report["sides"]},
                     report=report)
 
@@ -282,19 +284,25 @@ def _attached_hand(skel, X, X_rest, K, frame_time: float, side: str) -> tuple[BV
     return clip, torch.from_numpy(R)
 
 
-def _blend(captured: torch.Tensor, solution: torch.Tensor, frames: np.ndarray, clip: BVHClip, blend: float):
-    """Ramp from the captured rotations to the solution's over ``blend`` seconds at each inner end."""
+def blend_weights(frames: np.ndarray, num_frames: int, fps: float, blend: float) -> np.ndarray:
+    """Weight of the solution per segment frame, (N,) in [0, 1]: 0 on the segment's first frame, 1 from
+    ``K = max(1, round(blend * fps))`` frames in (smoothstep in between), the same toward the last frame; an end
+    of the segment that is an end of the clip has no ramp. ``blend = 0``: all ones."""
     n = len(frames)
-    k = blend * clip.fps
     w = np.ones(n)
-    if k > 0:
+    if blend > 0:
+        K = max(1, int(round(blend * fps)))
         i = np.arange(n, dtype=np.float64)
         if frames[0] > 0:
-            w = np.minimum(w, (i + 1) / (k + 1))
-        if frames[-1] < clip.num_frames - 1:
-            w = np.minimum(w, (n - i) / (k + 1))
+            w = np.minimum(w, i / K)
+        if frames[-1] < num_frames - 1:
+            w = np.minimum(w, (n - 1 - i) / K)
     w = np.clip(w, 0.0, 1.0)
-    w = w * w * (3 - 2 * w)                                   # smoothstep
+    return w * w * (3 - 2 * w)
+
+
+def _blend(captured: torch.Tensor, solution: torch.Tensor, w: np.ndarray) -> torch.Tensor:
+    """Per frame, the rotation ``w`` of the way from the captured one to the solution's (slerp)."""
     if np.all(w == 1.0):
         return solution
     Rc = Rotation.from_matrix(captured.numpy())
@@ -305,19 +313,13 @@ def _blend(captured: torch.Tensor, solution: torch.Tensor, frames: np.ndarray, c
 
 
 def _tip_report(clip: BVHClip, rig, side: str, names: list[str], targets: np.ndarray, frames: np.ndarray, src,
-                blend: float) -> dict:
+                inner: np.ndarray) -> dict:
     """Fingertip distances (metres) between the written body and the solution placed at the body's wrist, over
-    the segment's frames outside the blends."""
+    the segment's ``inner`` frames (outside the blends; all frames when the segment is all blend)."""
     G = clip.global_transforms(frames).numpy()
     tips = rig.tips.get(side, {})
-    inner = np.ones(len(frames), dtype=bool)
-    k = int(math.ceil(blend * clip.fps))
-    if k and frames[0] > 0:
-        inner[:k] = False
-    if k and frames[-1] < clip.num_frames - 1:
-        inner[max(len(frames) - k, 0):] = False
     if not inner.any():
-        inner[:] = True
+        inner = np.ones_like(inner)
     dist = {}
     for f, name in enumerate(names):
         j = tips.get("pinky" if name == "little" else name)

@@ -36,13 +36,17 @@ def local_rotations(clip: BVHClip, motion: np.ndarray | None = None) -> torch.Te
     return clip._local(np.asarray(m, dtype=np.float64).reshape(-1, clip.motion.shape[1]))[..., :3, :3]
 
 
-def rotations_to_channels(clip: BVHClip, motion: np.ndarray, joints: dict[int, torch.Tensor]) -> np.ndarray:
+def rotations_to_channels(clip: BVHClip, motion: np.ndarray, joints: dict[int, torch.Tensor], *,
+                          continue_from: np.ndarray | None = None) -> np.ndarray:
     """Write local rotations into the rotation channels of the given joints (a copy of ``motion``).
 
     Args:
         clip: the clip whose hierarchy ``motion`` follows
         motion: channel values, (F, C), degrees for rotations
         joints: joint index -> local rotations (F, 3, 3); the joint must have exactly three rotation channels
+        continue_from: optional channel values of the frame just before ``motion``, (C,): the angles then continue
+            from that frame's (the nearest equivalent Euler triple), so a segment written into a clip joins its
+            neighbours without a 360-degree or twin-solution jump
 
     Returns:
         (F, C) float64, with those joints' rotation channels replaced (angles unwrapped along time)
@@ -54,7 +58,12 @@ def rotations_to_channels(clip: BVHClip, motion: np.ndarray, joints: dict[int, t
         if len(order) != 3:
             raise InputValueError(f"joint '{clip.names[j]}' of {clip.path} has rotation channels '{order}'; "
                                   "three are needed to carry a rotation")
-        ang = unwrap_euler(matrix_to_euler(R.to(torch.float64), order), order)
+        ang = matrix_to_euler(R.to(torch.float64), order)
+        if continue_from is not None:
+            prev = torch.from_numpy(np.deg2rad(np.asarray(continue_from, dtype=np.float64)[cols]))
+            ang = unwrap_euler(torch.cat([prev[None], ang]), order)[1:]
+        else:
+            ang = unwrap_euler(ang, order)
         out[:, cols] = np.rad2deg(ang.numpy())
     return out
 
