@@ -358,6 +358,10 @@ def test_blender_imports_glb(bpy, case, tmp_path):
         got = np.array(bpy.data.objects["object"].matrix_world.translation)
         worst = max(worst, np.abs(got - sol.object_pose[t, :3, 3]).max())
         np.testing.assert_allclose(got, sol.object_pose[t, :3, 3], rtol=0, atol=1e-3, err_msg=f"object, frame {t}")
+        com = np.append(result.scene.object.com, 1.0)                                  # the object's centre of mass
+        got_com = (np.array(bpy.data.objects["object"].matrix_world) @ com)[:3]
+        np.testing.assert_allclose(got_com, (sol.object_pose[t] @ com)[:3], rtol=0, atol=1e-3,
+                                   err_msg=f"object centre of mass, frame {t}")
         for h in sol.hands:
             for f, name in enumerate(result.hand_models[h.side].finger_names):
                 got = np.array(bpy.data.objects[f"{h.side}/{name}_tip"].matrix_world.translation)
