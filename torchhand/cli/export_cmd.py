@@ -58,6 +58,8 @@ def run(args) -> int:
     finally:
         progress.close()
     n = len(rep.report["solutions"])
+    if not rep.report["result_complete"]:
+        print(f"note: {args.result} is a partial run; exported the solutions written so far")
     print(f"wrote {len(rep.files)} file(s) for {n} solution(s) to {rep.out} in {rep.report['seconds']:.1f} s")
     for entry in rep.report["solutions"]:
         onto = entry.get("onto")

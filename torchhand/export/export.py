@@ -116,6 +116,9 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
         raise InputValueError(f"{result_dir}: is a splice output; its spliced.bvh is already a BVH of the body "
                               "with fingers (open it directly)")
     result = load_result(result_dir)
+    if not result.complete:
+        say(f"{result_dir} is a partial run (stats.json: complete false): exporting the "
+            f"{len(result.solution_files)} solution(s) written so far")
     indices = parse_solution_spec(solutions, len(result.solution_files))
     body = read_bvh(onto) if onto is not None else None
     if body is not None and result.scene.source is None:
@@ -165,7 +168,7 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
             p.unlink()
             removed.append(p.name)
     report = {
-        "result": str(result_dir), "solutions": per_solution, "files": sorted(names),
+        "result": str(result_dir), "result_complete": bool(result.complete), "solutions": per_solution, "files": sorted(names),
         "formats": list(formats), "bvh_units": units, "bvh_up": up, "contacts": bool(contacts),
         "onto": str(onto) if onto is not None else None, "blend_s": float(blend) if onto is not None else None,
         "removed_from_earlier_export": removed, "seconds": time.perf_counter() - t0,
