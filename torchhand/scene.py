@@ -89,18 +89,24 @@ class HandTrack:
     Fields
         side: "right" or "left"
         wrist_pose: hand (wrist) frame poses ``T_world_hand``, (T, 4, 4), world, metres, float64
-        length: hand length, wrist joint centre to middle fingertip, float, metres (default 0.19)
+        length: hand length, wrist joint centre to middle fingertip, float, metres (default 0.19); scales the
+            built-in hand, informational for an MJCF hand
+        model: "default" (the built-in human hand scaled by ``length``) or the path of an MJCF hand (absolute once
+            loaded from a scene directory; :func:`torchhand.hand.mount.track_hand` builds the model)
     """
 
     side: str
     wrist_pose: torch.Tensor
     length: float = 0.19
+    model: str = "default"
 
     def __post_init__(self):
         if self.side not in SIDES:
             raise InputValueError(f"HandTrack.side: expected 'right' or 'left', got {self.side!r}")
         _check_pose_tensor(self.wrist_pose, f"HandTrack.wrist_pose ({self.side})")
         object.__setattr__(self, "length", _check_number(self.length, "HandTrack.length", low=0.0, strict=True))
+        if not isinstance(self.model, str) or not self.model:
+            raise InputValueError(f"HandTrack.model: expected 'default' or an MJCF path, got {self.model!r}")
 
     @property
     def T(self) -> int:

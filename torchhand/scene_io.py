@@ -40,7 +40,8 @@ def export_scene_dir(scene: Scene, directory: str | os.PathLike, *, overwrite: b
     target = Path(directory)
     if target.exists() and not target.is_dir():
         raise InputValueError(f"directory: '{target}' exists and is not a directory")
-    names = (_MESH_FILE, _TRAJ_FILE, _SCENE_TOML)
+    names = (_MESH_FILE, _TRAJ_FILE) + tuple(n for t in scene.hands if t.model != "default"
+                                              for n in _hand_files(t)) + (_SCENE_TOML,)
     if not overwrite:
         clash = [n for n in names if (target / n).exists()]
         if clash:
@@ -98,8 +99,31 @@ def _write_files(scene: Scene, out: Path) -> None:
         doc["source"] = _source_doc(scene.source)
     text = tomli_w.dumps(doc)
     for h in sorted(scene.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
-        text += "\n[[hands]]\n" + tomli_w.dumps({"side": h.side, "length": float(h.length)})
+        entry = {"side": h.side, "length": float(h.length)}
+        if h.model != "default":
+            entry["model"] = _write_hand(h, out)
+        text += "\n[[hands]]\n" + tomli_w.dumps(entry)
     (out / _SCENE_TOML).write_text(text, encoding="utf-8")
+
+
+def _hand_files(track: HandTrack) -> tuple[str, ...]:
+    """Files a scene directory holds for an MJCF hand: the model (meshes inline) and its sidecar, if any."""
+    from .hand.mount import sidecar_path
+
+    xml = f"hand_{track.side}.xml"
+    return (xml, sidecar_path(xml).name) if sidecar_path(track.model).is_file() else (xml,)
+
+
+def _write_hand(track: HandTrack, out: Path) -> str:
+    """Write an MJCF hand into the scene directory, self-contained (meshes inline), with its sidecar."""
+    from .hand.mjcf import load_mjcf, save_mjcf
+    from .hand.mount import sidecar_path
+
+    files = _hand_files(track)
+    save_mjcf(load_mjcf(track.model, side=track.side), out / files[0])
+    if len(files) > 1:
+        shutil.copyfile(sidecar_path(track.model), out / files[1])
+    return files[0]
 
 
 def _source_doc(src: MocapSource) -> dict:
@@ -121,7 +145,7 @@ _SCHEMA = {
     "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
     "environment": {"table", "table_height", "friction"},
-    "hands": {"side", "length"},
+    "hands": {"side", "length", "model"},
     "source": {"kind", "fps", "frames", "first_frame", "units_scale", "up_axis", "handedness", "wrists"},
     "source.wrists": {"side", "file", "joint", "rotation"},
 }
@@ -240,15 +264,22 @@ def load_scene_dir(directory: Path) -> Scene:
         side = r.get(hd, f"hands[{i}]", "side", "str")
         if side not in SIDES:
             raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
-        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19)))
-    if len({s for s, _ in hand_specs}) != len(hand_specs):
-        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _ in hand_specs]}")
+        model = r.get(hd, f"hands[{i}]", "model", "str", "default")
+        if model != "default":
+            mpath = (directory / model).resolve()
+            if not mpath.is_file():
+                raise MissingFileError(f"{toml_path}: hands[{i}].model '{mpath}' does not exist (an MJCF hand file, "
+                                       "relative to the scene directory, or \"default\")")
+            model = str(mpath)
+        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model))
+    if len({s for s, _, _ in hand_specs}) != len(hand_specs):
+        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _, _ in hand_specs]}")
 
     mesh_path = directory / mesh_name
     if not mesh_path.is_file():
         raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
     traj_path = directory / traj_name
-    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _ in hand_specs])
+    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _, _ in hand_specs])
     T = arrays["object_pose"].shape[0]
     for key, a in arrays.items():
         if a.shape[0] != T:
@@ -256,7 +287,8 @@ def load_scene_dir(directory: Path) -> Scene:
         check_transforms(a, f"{traj_path}: {key}")
 
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
-    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length) for s, length in hand_specs)
+    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model)
+                  for s, length, model in hand_specs)
     try:
         source = _read_source(r, doc) if "source" in doc else None
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,

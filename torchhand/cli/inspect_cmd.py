@@ -38,7 +38,7 @@ def run(args) -> int:
     from tqdm import tqdm
 
     from ..collision import finger_interpenetration, hand_object_penetration
-    from ..hand import default_hand
+    from ..hand.mount import track_hand
     from ..hand.mjcf import save_mjcf
     from ..scene import environment_contacts, load_scene
     from ..sdf import SDFGrid
@@ -55,7 +55,7 @@ def run(args) -> int:
     scene.export(out / "scene", overwrite=True)
     steps.update()
 
-    hands = {track.side: default_hand(track.side, track.length) for track in scene.hands}
+    hands = {track.side: track_hand(track) for track in scene.hands}
     for side, hand in hands.items():
         save_mjcf(hand, out / ("hand.xml" if side == scene.hands[0].side else f"hand_{side}.xml"))
     steps.update()

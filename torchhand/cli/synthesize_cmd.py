@@ -44,6 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strategy", default="mixed", choices=["static", "sliding", "relocating", "mixed"],
                    help="manipulation-strategy preference (default mixed)")
     p.add_argument("--frames", metavar="A:B", help="synthesize frames A <= t < B of the scene only")
+    p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH.xml",
+                   help="use this MJCF hand for SIDE instead of the scene's (right=..., left=...; docs/hand_model.md)")
     p.add_argument("--slide-speed", type=float, default=0.02, metavar="M_PER_S",
                    help="a contact held over two frames whose hand point moves faster than this on the object "
                         "slides (force on its friction cone's boundary); motion capture, whose wrist drifts by "
@@ -64,6 +66,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_threads_argument(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar or progress lines")
     p.set_defaults(func=run)
+
+
+def with_hands(scene, items: list[str]):
+    """The scene with ``SIDE=PATH.xml`` hand overrides applied (InputValueError for a bad item)."""
+    import dataclasses
+    from pathlib import Path
+
+    from ..hand.mount import track_hand
+
+    if not items:
+        return scene
+    models = {}
+    for item in items:
+        side, sep, path = item.partition("=")
+        if not sep or side not in ("right", "left") or not path:
+            raise InputValueError(f"--hand {item}: expected SIDE=PATH.xml with SIDE right or left")
+        if side not in scene.sides:
+            raise InputValueError(f"--hand {item}: scene '{scene.name}' has no {side} hand (hands: "
+                                  f"{', '.join(scene.sides)})")
+        models[side] = str(Path(path).resolve())
+    hands = tuple(dataclasses.replace(t, model=models.get(t.side, t.model)) for t in scene.hands)
+    for t in hands:
+        track_hand(t)                                   # load now: a bad file fails before any work
+    return dataclasses.replace(scene, hands=hands)
 
 
 def _frames(text: str, T: int) -> tuple[int, int]:
@@ -102,6 +128,7 @@ def run(args) -> int:
     writer = ResultWriter(args.out, overwrite=args.overwrite)     # before any work: nothing is lost later
     try:
         scene = load_scene(args.scene)
+        scene = with_hands(scene, args.hand)
         scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
         if args.frames:
             scene = scene.with_frames(*_frames(args.frames, scene.T))

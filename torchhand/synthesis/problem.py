@@ -24,7 +24,7 @@ import torch
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from ..collision import rigid_inverse
-from ..hand import default_hand
+from ..hand.mount import track_hand
 from ..hand.model import HandModel
 from ..objects import sample_surface
 from ..scene import EnvContacts, Scene, environment_contacts
@@ -200,7 +200,7 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
                   voxel_size: float = 0.0015, surface_samples: int = 3000, max_env_contacts: int = 8,
                   progress: bool = False) -> SynthesisProblem:
     """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU)."""
-    hands = tuple(default_hand(track.side, track.length).to(device, dtype) for track in scene.hands)
+    hands = tuple(track_hand(track).to(device, dtype) for track in scene.hands)
     root = torch.stack([track.wrist_pose for track in scene.hands]).to(device, dtype)
     pose64 = scene.object_pose.double()
     obj = scene.object
@@ -215,7 +215,7 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
     for h, track in enumerate(scene.hands):
         inv = rigid_inverse(track.wrist_pose.double())
         local = torch.einsum("tij,tsj->tsi", inv[:, :3, :3], world) + inv[:, None, :3, 3]
-        hand64 = default_hand(track.side, track.length)
+        hand64 = track_hand(track)
         codes = finger_workspace(hand64, generator)
         patches.append(torch.stack([_in_workspace(local, c, 0.006) for c in codes]))   # (F, T, S)
     env = _thin_env(environment_contacts(scene), max_env_contacts)

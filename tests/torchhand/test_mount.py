@@ -1,0 +1,122 @@
+"""A scene names its hand: the built-in one or an MJCF file, mounted on the wrist track's hand frame.
+
+The hand-frame rule (:mod:`torchhand.hand.mount`) is checked on the built-in hand, whose model frame *is* the hand
+frame, and on the Shadow and Allegro hands by what the frame means: fingers along +x, flexion toward the palm
+(-z), the thumb on the +y side of a right hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+
+import torchhand
+from torchhand.cli import main
+from torchhand.errors import FileFormatError, MissingFileError
+from torchhand.hand import HandModel
+from torchhand.hand.default import default_hand
+from torchhand.hand.mount import hand_frame, thumb_index, track_hand
+
+from tests.conftest import shared_path
+
+ROBOTS = {"shadow": "shadow_hand", "allegro": "allegro_hand"}
+
+
+def robot_file(name: str, side: str = "right"):
+    return shared_path("hands", ROBOTS[name], f"{side}_hand.xml")
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_rule_recovers_the_builtin_hand_frame(side):
+    F = hand_frame(default_hand(side, 0.19))
+    angle = math.degrees(math.acos(np.clip((np.trace(F[:3, :3]) - 1) / 2, -1, 1)))
+    assert angle < 5.0, f"{side}: the rule's frame is {angle:.1f} degrees from the built-in hand's"
+    assert np.linalg.norm(F[:3, 3]) < 1e-9
+
+
+def tips_and_flexion(model):
+    m = model.to(dtype=torch.float64)
+    q0 = m.clamp_to_limits(torch.zeros(1, m.num_joints, dtype=torch.float64))
+    q1 = q0.clone()
+    fl = m.flexion_joints[m.flexion_joints >= 0]
+    q1[0, fl] += 0.4
+    q1 = m.clamp_to_limits(q1)
+
+    def tips(q):
+        T = m.forward_kinematics(q)[0][m.distal_link]
+        return (T[:, :3, :3] @ m.fingertip[:, :, None]).squeeze(-1) + T[:, :3, 3]
+
+    return tips(q0).numpy(), (tips(q1) - tips(q0)).numpy()
+
+
+@pytest.mark.parametrize("robot,side", [("shadow", "right"), ("shadow", "left"), ("allegro", "right")])
+def test_robot_hand_mounted_on_the_hand_frame(robot, side):
+    track = torchhand.load_scene("box-turn").hands[0]
+    hand = track_hand(dataclasses.replace(track, side=side, model=str(robot_file(robot, side))))
+    tips, flex = tips_and_flexion(hand)
+    th = thumb_index(hand)
+    long_f = [f for f in range(hand.num_fingers) if f != th]
+    assert (tips[long_f, 0] > 0.1).all()                                   # fingers ahead, along +x
+    assert (flex[long_f, 2] < -0.01).all()                                 # flexion closes toward the palm (-z)
+    across = tips[long_f[0], 1] - tips[long_f[-1], 1]
+    assert across > 0 if side == "right" else across < 0                   # toward the thumb's side: +y (right)
+    # the wrist track gives the palm: the joints between the root and the palm are locked, no others
+    locked = [n for n, (lo, hi) in zip(hand.joint_names, hand.joint_limits.tolist()) if lo == hi]
+    assert locked == ([f"{side[0]}h_WRJ2", f"{side[0]}h_WRJ1"] if robot == "shadow" else [])
+
+
+def test_sidecar_mount_and_errors(tmp_path):
+    src = robot_file("allegro")
+    xml = tmp_path / "allegro.xml"
+    HandModel.from_mjcf(src).to_mjcf()
+    from torchhand.hand.mjcf import save_mjcf
+
+    save_mjcf(HandModel.from_mjcf(src), xml)
+    track = dataclasses.replace(torchhand.load_scene("box-turn").hands[0], model=str(xml))
+    auto = track_hand(track)
+    (tmp_path / "allegro.torchhand.toml").write_text(
+        "[mount]\norigin = [0.0, 0.0, -0.05]\nx_axis = [0.0, 0.0, 1.0]\ny_axis = [0.0, 1.0, 0.0]\n")
+    given = track_hand(track)
+    root = given.forward_kinematics(torch.zeros(1, given.num_joints, dtype=torch.float64))[0, 0].numpy()
+    # root link of the re-rooted model: F^-1 with F = [x, y, z | origin]
+    F = np.eye(4)
+    F[:3, 0], F[:3, 1], F[:3, 2], F[:3, 3] = [0, 0, 1], [0, 1, 0], [-1, 0, 0], [0, 0, -0.05]
+    np.testing.assert_allclose(root, np.linalg.inv(F), atol=1e-12)
+    assert not torch.equal(auto.chain.link_offset[0], given.chain.link_offset[0])
+    (tmp_path / "allegro.torchhand.toml").write_text("[mount]\nwrist = 1\n")
+    with pytest.raises(FileFormatError, match="unknown"):
+        track_hand(track)
+    with pytest.raises(MissingFileError):
+        track_hand(dataclasses.replace(track, model=str(tmp_path / "none.xml")))
+
+
+def test_scene_carries_its_mjcf_hand(tmp_path):
+    scene = torchhand.load_scene("box-turn")
+    scene = dataclasses.replace(scene, hands=(dataclasses.replace(scene.hands[0], model=str(robot_file("shadow"))),))
+    out = scene.export(tmp_path / "scene")
+    text = (out / "scene.toml").read_text()
+    assert 'model = "hand_right.xml"' in text and (out / "hand_right.xml").is_file()
+    back = torchhand.load_scene(out)
+    assert back.hands[0].model == str((out / "hand_right.xml").resolve())
+    a, b = track_hand(scene.hands[0]), track_hand(back.hands[0])
+    q = a.random_q(8, torch.Generator().manual_seed(1)).double()
+    root = back.hands[0].wrist_pose[:8].double()
+    np.testing.assert_allclose(a.forward_kinematics(q, root).numpy(), b.forward_kinematics(q, root).numpy(),
+                               atol=1e-12)
+    # a scene file naming a missing hand
+    (out / "hand_right.xml").unlink()
+    with pytest.raises(MissingFileError, match="hands\\[0\\].model"):
+        torchhand.load_scene(out)
+
+
+@pytest.mark.parametrize("item,message", [("middle=x.xml", "SIDE=PATH.xml"), ("left=x.xml", "no left hand"),
+                                          ("right=/no/such/hand.xml", "does not exist")])
+def test_synthesize_hand_option_refuses_bad_input(tmp_path, capsys, item, message):
+    out = tmp_path / "out"
+    assert main(["synthesize", "box-turn", "--hand", item, "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1

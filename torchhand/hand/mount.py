@@ -1,0 +1,228 @@
+"""Where a hand model sits on a wrist track: the hand frame of a model, and a model re-rooted on it.
+
+A scene's wrist track is the pose of the **hand frame** (docs/scene_format.md): origin at the wrist, ``+x`` along
+the fingers, ``+z`` out of the back of the hand (the palm faces ``-z``), ``+y = z × x`` (toward the thumb for a
+right hand, away from it for a left hand). The built-in hand is modelled in that frame. A robot hand from MJCF is
+not: its root body's axes are whatever its authors chose (the Shadow hand's forearm points along ``+z``). So a
+robot hand is *mounted*: its root link's offset is pre-multiplied by ``F⁻¹``, with ``F`` the hand frame in the
+model's root coordinates, and then ``forward_kinematics(q, wrist_pose)`` places it on the track like the built-in
+hand.
+
+``F`` from the model at ``q = 0`` clamped to the limits, straight fingers (:func:`hand_frame`), unless a sidecar file gives it (:func:`load_sidecar`):
+
+* thumb: the finger whose name contains ``th`` or ``thumb``; the others are the long fingers;
+* ``+x``: from the mean base (first link origin) of the long fingers to the mean of their fingertips;
+* ``+y``: across the knuckles, from the outermost long finger's base to the one on the thumb's side, made
+  orthogonal to ``x``; negated for a left hand;
+* origin: the origin of the link the fingers branch from (the palm: Shadow's ``rh_palm``, which carries the wrist
+  joint ``WRJ1``; Allegro's ``palm``), moved along ``-x`` to the plane of the long fingers' bases less
+  ``palm_length`` (default: the distance from the branching link's origin to that plane, i.e. the origin itself
+  when it lies behind the bases, as in the Shadow hand).
+
+Joints between the root and the link the fingers branch from (the Shadow hand's wrist ``WRJ1``, ``WRJ2``) are
+locked at ``q_rest`` (:func:`lock_palm_joints`): the wrist track gives the palm's pose.
+
+Sidecar (``<model>.torchhand.toml`` beside the MJCF file, all keys optional)::
+
+    [mount]
+    origin = [0.0, 0.0, 0.034]            # hand-frame origin in the root link's parent frame, metres
+    x_axis = [0.0, 0.0, 1.0]              # + x (along the fingers), root coordinates
+    y_axis = [1.0, 0.0, 0.0]              # + y (made orthogonal to x), root coordinates
+
+Conventions: metres, column-vector 4x4 transforms (:mod:`torchhand.conventions`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import FileFormatError, InputValueError, MissingFileError
+
+__all__ = ["hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index", "track_hand"]
+
+
+def thumb_index(model) -> int | None:
+    """Index of the thumb among ``model.finger_names`` (name containing "th"/"thumb"), or None."""
+    for f, name in enumerate(model.finger_names):
+        n = name.lower()
+        if n == "th" or "thumb" in n or n.startswith("th"):
+            return f
+    return None
+
+
+def hand_frame(model) -> np.ndarray:
+    """``F``: the hand frame in the model's root coordinates (the root link's parent frame) at ``q = 0``, (4, 4).
+
+    Raises:
+        InputValueError: fewer than two long fingers, or no thumb, so the axes are not defined.
+    """
+    m = model.to(device="cpu", dtype=torch.float64)
+    q0 = m.clamp_to_limits(torch.zeros(1, m.num_joints, dtype=torch.float64))      # straight fingers
+    T = m.forward_kinematics(q0).numpy()[0]                                         # (L, 4, 4)
+    th = thumb_index(m)
+    long_f = [f for f in range(m.num_fingers) if f != th]
+    if th is None or len(long_f) < 2:
+        raise InputValueError(f"hand {m.name!r}: cannot find its hand frame (fingers {', '.join(m.finger_names)}; "
+                              "a thumb and two other fingers are needed); give [mount] in a sidecar file")
+    base = np.stack([T[int(m.finger_links[f, 0]), :3, 3] for f in range(m.num_fingers)])
+    distal = m.distal_link.numpy()
+    tips = np.einsum("fab,fb->fa", T[distal, :3, :3], m.fingertip.numpy()) + T[distal, :3, 3]
+    b = base[long_f].mean(0)
+    x = _unit(tips[long_f].mean(0) - b)
+    y = base[long_f[0]] - base[long_f[-1]]                 # across the knuckles, toward the thumb's side
+    if y @ (base[th] - b) < 0:
+        y = -y
+    y = _unit(y - (y @ x) * x)
+    if m.side == "left":
+        y = -y
+    z = np.cross(x, y)
+    # the branching link: the deepest common ancestor of the fingers' first links
+    parents = m.chain.link_parent.tolist()
+    chains = []
+    for f in range(m.num_fingers):
+        a, path = int(m.finger_links[f, 0]), []
+        while a >= 0:
+            path.append(a)
+            a = parents[a]
+        chains.append(path[::-1])
+    common = 0
+    for k in range(min(len(c) for c in chains)):
+        if len({c[k] for c in chains}) == 1:
+            common = chains[0][k]
+    origin = T[common, :3, 3].copy()
+    ahead = (b - origin) @ x
+    if ahead < 0.0:                                   # the palm origin lies beyond the knuckles: put it behind them
+        origin = origin + (ahead - 0.08) * x
+    F = np.eye(4)
+    F[:3, 0], F[:3, 1], F[:3, 2], F[:3, 3] = x, y, z, origin
+    return F
+
+
+def sidecar_path(mjcf_path) -> Path:
+    """``<stem>.torchhand.toml`` beside the MJCF file."""
+    p = Path(mjcf_path)
+    return p.with_name(p.stem + ".torchhand.toml")
+
+
+def load_sidecar(mjcf_path) -> dict:
+    """The sidecar of an MJCF file as a dict ({} when there is none); FileFormatError for unknown keys."""
+    p = sidecar_path(mjcf_path)
+    if not p.is_file():
+        return {}
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as err:
+        raise FileFormatError(f"{p}: cannot read: {err}") from None
+    allowed = {"mount": {"origin", "x_axis", "y_axis"}}
+    for key, table in doc.items():
+        if key not in allowed or not isinstance(table, dict) or set(table) - allowed[key]:
+            raise FileFormatError(f"{p}: unknown table or key {key!r}; allowed: [mount] origin, x_axis, y_axis")
+    return doc
+
+
+def sidecar_frame(doc: dict, default: np.ndarray) -> np.ndarray:
+    """``F`` with the sidecar's ``[mount]`` entries replacing those of ``default`` (4, 4)."""
+    mount = doc.get("mount", {})
+    F = default.copy()
+    x = _vec(mount["x_axis"], "mount.x_axis") if "x_axis" in mount else F[:3, 0]
+    y = _vec(mount["y_axis"], "mount.y_axis") if "y_axis" in mount else F[:3, 1]
+    x = _unit(x)
+    y = _unit(y - (y @ x) * x)
+    F[:3, 0], F[:3, 1], F[:3, 2] = x, y, np.cross(x, y)
+    if "origin" in mount:
+        F[:3, 3] = _vec(mount["origin"], "mount.origin")
+    return F
+
+
+def mounted(model, F: np.ndarray):
+    """``model`` re-rooted on its hand frame ``F`` (4, 4): the root link's offset becomes ``F⁻¹ @ offset``."""
+    inv = np.linalg.inv(np.asarray(F, dtype=np.float64))
+    ch = model.chain
+    off = ch.link_offset.clone()
+    off[0] = torch.as_tensor(inv, dtype=off.dtype, device=off.device) @ off[0]
+    return dataclasses.replace(model, chain=ch._replace(link_offset=off))
+
+
+def track_hand(track):
+    """The hand model of a scene's hand track (:class:`torchhand.scene.HandTrack`), float64 on the CPU.
+
+    ``track.model == "default"``: ``default_hand(track.side, track.length)``. Otherwise the MJCF file at
+    ``track.model``, loaded as a ``track.side`` hand and mounted on its hand frame (module docstring; the sidecar
+    file wins where it says something). Loaded files are cached per (path, side, modification time).
+
+    Raises:
+        MissingFileError: the MJCF file does not exist; InputValueError: a hand of the other side, or no hand frame.
+    """
+    if track.model == "default":
+        from .default import default_hand
+
+        return default_hand(track.side, track.length)
+    path = Path(track.model)
+    if not path.is_file():
+        raise MissingFileError(f"hands: MJCF hand '{path}' does not exist")
+    side_car = sidecar_path(path)
+    stamp = (path.stat().st_mtime_ns, side_car.stat().st_mtime_ns if side_car.is_file() else 0)
+    return _mounted_mjcf(str(path.resolve()), track.side, stamp)
+
+
+@functools.lru_cache(maxsize=16)
+def _mounted_mjcf(path: str, side: str, stamp) -> "object":
+    from .mjcf import load_mjcf
+
+    model = load_mjcf(path, side=side)
+    if model.side not in (side, "none"):
+        raise InputValueError(f"hands: {path} is a {model.side} hand, the scene's track is the {side} hand")
+    doc = load_sidecar(path)
+    mount = doc.get("mount", {})
+    default = np.eye(4) if {"origin", "x_axis", "y_axis"} <= set(mount) else hand_frame(model)
+    return lock_palm_joints(mounted(model, sidecar_frame(doc, default)))
+
+
+def lock_palm_joints(model):
+    """``model`` with the joints between the root and the link the fingers branch from (the Shadow hand's wrist
+    ``WRJ1``/``WRJ2``) locked at ``q_rest`` (their limits collapsed to it): a wrist track gives the palm's pose, so
+    the palm must not move against it. Joints on a link above one finger only (the Shadow thumb's ``THJ5``, the
+    little finger's metacarpal ``LFJ5``) stay free."""
+    shared = _shared_links(model)
+    palm = torch.tensor([int(l) in shared for l in model.chain.joint_link.tolist()], dtype=torch.bool,
+                        device=model.joint_limits.device)
+    if not bool(palm.any()):
+        return model
+    lim = model.joint_limits.clone()
+    lim[palm, 0] = model.q_rest[palm]
+    lim[palm, 1] = model.q_rest[palm]
+    return dataclasses.replace(model, joint_limits=lim)
+
+
+def _shared_links(model) -> set[int]:
+    """Links that are ancestors of (or equal to) every finger's first link: root .. branching link."""
+    parents = model.chain.link_parent.tolist()
+    shared = None
+    for f in range(model.num_fingers):
+        a, path = int(model.finger_links[f, 0]), set()
+        a = parents[a]
+        while a >= 0:
+            path.add(a)
+            a = parents[a]
+        shared = path if shared is None else shared & path
+    return shared or set()
+
+
+def _vec(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64) if isinstance(v, list) else None
+    if a is None or a.shape != (3,) or not np.isfinite(a).all():
+        raise InputValueError(f"{name}: expected 3 numbers, got {v!r}")
+    return a
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    if n < 1e-9:
+        raise InputValueError("hand frame: degenerate direction (fingers and thumb coincide)")
+    return v / n
