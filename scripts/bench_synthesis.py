@@ -12,7 +12,7 @@ dynamic test per frame, 2.8 GHz Core 2 Duo) is printed beside it.
 any machine), the Table 1 columns of each run, the in-search node-test rate beside the one-at-a-time rate measured
 in the same run (and the paper's), and the independent checks (:mod:`torchhand.check`) of every solution written.
 
-    python scripts/bench_synthesis.py nodes --json bench_nodes.json
+    python scripts/bench_synthesis.py nodes --json bench_nodes.json [--hands default shadow allegro]
     python scripts/bench_synthesis.py scenes --max-nodes 60000 --json bench_scenes.json
 """
 
@@ -35,26 +35,54 @@ PAPER_NODES_PER_S = 1 / 0.205
 SCENES = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box")
 
 
-def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: int = 30):
-    """(problem, run) where run() tests N candidates of box-turn at ``frame``, all fingers guided."""
+HANDS = {"default": "default", "shadow": "hands/shadow_hand/right_hand.xml",
+         "allegro": "hands/allegro_hand/right_hand.xml"}
+
+
+def scene_with_hand(hand: str):
+    """box-turn with its right hand replaced: "default", "shadow", "allegro" (shared data) or an MJCF path."""
+    import dataclasses
+
     import torchhand
+
+    scene = torchhand.load_scene("box-turn")
+    if hand == "default":
+        return scene
+    path = HANDS.get(hand)
+    if path is not None:
+        data = os.environ.get("TORCHHAND_SHARED_DATA", os.path.join(HERE, "..", "..", "shared", "data"))
+        path = os.path.join(data, path)
+    else:
+        path = hand
+    return dataclasses.replace(scene, hands=(dataclasses.replace(scene.hands[0], model=os.path.abspath(path)),))
+
+
+def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: int = 30, hand: str = "default"):
+    """(problem, run) where run() tests N candidates of box-turn (with ``hand``) at ``frame``, all fingers
+    guided."""
     from torchhand.synthesis.initial import prune_patches
     from torchhand.synthesis.node_test import Guides, pad_points, run_node_test
     from torchhand.synthesis.problem import build_problem
 
     gen = torch.Generator().manual_seed(seed)
-    problem = build_problem(torchhand.load_scene("box-turn"), gen, device=device, dtype=dtype)
+    problem = build_problem(scene_with_hand(hand), gen, device=device, dtype=dtype)
     init = prune_patches(problem, gen)
     hand = problem.hands[0]
-    # the hold frame nearest ``frame`` where every finger has pruned patch samples
-    frame = min((t for t in range(problem.T) if all(init.samples(t, 0, f).numel() for f in range(5))),
-                key=lambda t: abs(t - frame))
-    obj = torch.zeros(N, 1, 5, 3, dtype=dtype, device=device)
-    for f in range(5):
+    F = hand.num_fingers
+    # the hold frame nearest ``frame`` where the most fingers (every finger, for the built-in hand) have pruned
+    # patch samples; those fingers are guided
+    def count(t):
+        return sum(bool(init.samples(t, 0, f).numel()) for f in range(F))
+
+    frame = min(range(problem.T), key=lambda t: (-count(t), abs(t - frame)))
+    active = torch.tensor([bool(init.samples(frame, 0, f).numel()) for f in range(F)], device=device)
+    obj = torch.zeros(N, 1, F, 3, dtype=dtype, device=device)
+    for f in range(F):
         idx = init.samples(frame, 0, f)
-        obj[:, 0, f] = problem.surface[idx[torch.randint(idx.numel(), (N,), generator=gen).to(idx.device)]]
-    guides = Guides(torch.ones(N, 1, 5, dtype=torch.bool, device=device), hand.distal_link.expand(N, 1, 5).clone(),
-                    pad_points(hand).expand(N, 1, 5, 3).clone(), obj, torch.zeros_like(obj))
+        if idx.numel():
+            obj[:, 0, f] = problem.surface[idx[torch.randint(idx.numel(), (N,), generator=gen).to(idx.device)]]
+    guides = Guides(active.expand(N, 1, F).clone(), hand.distal_link.expand(N, 1, F).clone(),
+                    pad_points(hand).expand(N, 1, F, 3).clone(), obj, torch.zeros_like(obj))
     t = torch.full((N,), frame, device=device)
     # as in the search, most node tests start from the previous frame's pose: solve frame - 1 first (untimed)
     warm = run_node_test(problem, t - 1, hand.q_rest.expand(N, 1, -1).clone(),
@@ -64,10 +92,11 @@ def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: in
     return problem, lambda: run_node_test(problem, t, q_prev, first, guides, prev_mask=warm.c_mask)
 
 
-def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024), repeats: int = 5) -> list[dict]:
+def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024), repeats: int = 5,
+                hand: str = "default") -> list[dict]:
     rows = []
     dname = str(dtype).replace("torch.", "")
-    _, one = node_batch(1, device, dtype)
+    _, one = node_batch(1, device, dtype, hand=hand)
     loop = 16
 
     def sequential():
@@ -76,14 +105,14 @@ def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024
 
     t = time_fn(sequential, device, repeats=repeats, warmup=1)
     seq_rate = loop / t["median_s"]
-    rows.append({"name": "node test, one candidate at a time", "device": device, "dtype": dname, "N": 1,
+    rows.append({"name": "node test, one candidate at a time", "hand": hand, "device": device, "dtype": dname, "N": 1,
                  **t, "nodes_per_s": seq_rate, "vs_sequential": 1.0, "vs_paper": seq_rate / PAPER_NODES_PER_S})
     for N in batches:
-        _, run = node_batch(N, device, dtype)
+        _, run = node_batch(N, device, dtype, hand=hand)
         t = time_fn(run, device, repeats=repeats, warmup=1)
         rate = N / t["median_s"]
         res = run()
-        rows.append({"name": "node test, batched", "device": device, "dtype": dname, "N": N, **t,
+        rows.append({"name": "node test, batched", "hand": hand, "device": device, "dtype": dname, "N": N, **t,
                      "nodes_per_s": rate, "vs_sequential": rate / seq_rate, "vs_paper": rate / PAPER_NODES_PER_S,
                      "feasible_frac": float(res.feasible.double().mean())})
     rows.append({"name": "Ye & Liu 2012 (paper, Core 2 Duo, one thread)", "device": "cpu", "N": 1,
@@ -157,16 +186,19 @@ def main(argv=None) -> int:
     p.add_argument("--mug-slide-speed", type=float, default=0.05,
                    help="--slide-speed of the mocap segment (default 0.05 m/s)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one run per scene and seed (default 0)")
+    p.add_argument("--hands", nargs="+", default=["default"],
+                   help="nodes: hands on box-turn's track: default, shadow, allegro (shared data) or MJCF paths")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     out = {"machine": machine(), "command": " ".join(sys.argv), "threads": a.threads}
     print(f"machine: {out['machine']}")
     if a.suite in ("nodes", "all"):
-        rows = bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats)
+        rows = [r for hand in a.hands for r in bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats,
+                                                            hand=hand)]
         print("\n[node tests]")
-        print_table(rows, ["name", "device", "dtype", "N", "median_s", "iqr_s", "nodes_per_s", "vs_sequential",
-                           "vs_paper", "feasible_frac"])
+        print_table(rows, ["name", "hand", "device", "dtype", "N", "median_s", "iqr_s", "nodes_per_s",
+                           "vs_sequential", "vs_paper", "feasible_frac"])
         out["nodes"] = rows
     if a.suite in ("scenes", "all"):
         rows = [r for seed in a.seeds
