@@ -15,9 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, InputValueError, MissingFileError, UnknownNameError
+from . import dynamics as _dyn
 from ._mjcf_common import _ROOT_WRAPPER, _axis_angle, _pose, _quat_to_mat, _z_to_vec
 from ._mjcf_fingers import _detect_fingers, _detect_side
-from .model import GEOM_TYPES, FingerSpec, GeomSpec, HandModel, JointSpec, LinkSpec, build_hand_model
+from .model import (GEOM_TYPES, FingerSpec, GeomSpec, HandModel, InertialSpec, JointSpec, LinkSpec,
+                    build_hand_model)
 
 __all__ = ["load_mjcf"]
 
@@ -34,6 +36,12 @@ class _Ctx:
     angle: float = math.pi / 180  # MuJoCo's default unit is the degree
     eulerseq: str = "xyz"
     autolimits: bool = True
+    inertiafromgeom: str = "auto"  # "true" | "false" | "auto"
+    inertiagrouprange: tuple = (0, 5)
+    boundmass: float = 0.0
+    boundinertia: float = 0.0
+    balanceinertia: bool = False
+    settotalmass: float = -1.0
     meshdir: Path = Path(".")
     defaults: dict = field(default_factory=dict)  # class -> tag -> attrs
     mesh_assets: dict = field(default_factory=dict)  # name -> (attrs, class)
@@ -147,6 +155,7 @@ def _parse_header(ctx: _Ctx, root: ET.Element) -> None:
             ctx.eulerseq = seq
         if c.get("autolimits") is not None:
             ctx.autolimits = c.get("autolimits") == "true"
+        _parse_inertia_settings(ctx, c)
         if c.get("coordinate", "local") != "local":
             raise ctx.error("<compiler>", "coordinate='global' is not supported (removed in MuJoCo 2.3.3)")
         meshdir = c.get("meshdir", meshdir)
@@ -171,6 +180,23 @@ def _parse_header(ctx: _Ctx, root: ET.Element) -> None:
                 if not f.is_file():
                     raise MissingFileError(f"{ctx.path}: <mesh name=\"{name}\">: mesh file not found: {f}")
             ctx.mesh_assets[name] = attrs
+
+
+def _parse_inertia_settings(ctx: _Ctx, c: ET.Element) -> None:
+    """``<compiler>``'s inertiafromgeom, inertiagrouprange, boundmass, boundinertia, balanceinertia, settotalmass."""
+    v = c.get("inertiafromgeom")
+    if v is not None:
+        if v not in ("true", "false", "auto"):
+            raise ctx.error("<compiler>", f"inertiafromgeom must be 'true', 'false' or 'auto', got {v!r}")
+        ctx.inertiafromgeom = v
+    if c.get("inertiagrouprange") is not None:
+        r = _floats(ctx, c.attrib, "inertiagrouprange", "<compiler>", 2)
+        ctx.inertiagrouprange = (int(r[0]), int(r[1]))
+    for key in ("boundmass", "boundinertia", "settotalmass"):
+        if c.get(key) is not None:
+            setattr(ctx, key, float(_floats(ctx, c.attrib, key, "<compiler>", 1)[0]))
+    if c.get("balanceinertia") is not None:
+        ctx.balanceinertia = c.get("balanceinertia") == "true"
 
 
 def _load_mesh(ctx: _Ctx, name: str, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -231,6 +257,8 @@ class _Tree:
     geoms: list = field(default_factory=list)  # GeomSpec
     parent: list = field(default_factory=list)  # link index of the parent, -1 for the root
     link_joints: list = field(default_factory=list)  # per link: joint indices
+    inertials: list = field(default_factory=list)  # per link: (mass, com (3,), inertia (3, 3)), link frame
+    from_geoms: list = field(default_factory=list)  # per link: None (explicit inertial) or a list of geom inertials
 
 
 def _add_body(ctx: _Ctx, tree: _Tree, body: ET.Element, parent: int, offset: np.ndarray, cls: str) -> None:
@@ -244,7 +272,64 @@ def _add_body(ctx: _Ctx, tree: _Tree, body: ET.Element, parent: int, offset: np.
     tree.links.append(LinkSpec(name, tree.links[parent].name if parent >= 0 else None, offset))
     tree.parent.append(parent)
     tree.link_joints.append([])
+    found = body.findall("inertial")
+    if len(found) > 1:
+        raise ctx.error(_where(body), "more than one <inertial>")
+    explicit = _inertial(ctx, found[0], name) if found else None
+    # MuJoCo: from the geoms when inertiafromgeom is true, or auto without an explicit <inertial>.
+    by_geoms = ctx.inertiafromgeom == "true" or (ctx.inertiafromgeom == "auto" and explicit is None)
+    tree.from_geoms.append([] if by_geoms else None)
+    tree.inertials.append(None)
     _add_children(ctx, tree, body, idx, np.eye(4), cls)
+    if by_geoms:
+        inertial = _dyn.combine_inertials(tree.from_geoms[idx])
+    else:
+        inertial = explicit if explicit is not None else (0.0, np.zeros(3), np.zeros((3, 3)))
+    tree.inertials[idx] = _bound_inertial(ctx, inertial, name)
+
+
+def _inertial(ctx: _Ctx, elem: ET.Element, lname: str):
+    """An ``<inertial>``: (mass, com (3,), inertia (3, 3) about com in the body frame); I = R diag R^T for
+    ``diaginertia`` in the inertial frame's orientation R, or ``fullinertia`` (ixx iyy izz ixy ixz iyz)."""
+    attrs = dict(elem.attrib)
+    where = f"<inertial> in body {lname!r}"
+    for key in ("pos", "mass"):
+        if key not in attrs:
+            raise ctx.error(where, f"attribute {key} is required")
+    mass = float(_floats(ctx, attrs, "mass", where, 1)[0])
+    if mass < 0:
+        raise ctx.error(where, f"mass must be >= 0, got {mass}")
+    if "fullinertia" in attrs:
+        orient = [k for k in ("quat", "axisangle", "xyaxes", "zaxis", "euler") if k in attrs]
+        if orient:
+            raise ctx.error(where, f"fullinertia and an orientation ({', '.join(orient)}) cannot both be given")
+        v = _floats(ctx, attrs, "fullinertia", where, 6)
+        T = _frame(ctx, attrs, where)
+        inertia = np.array([[v[0], v[3], v[4]], [v[3], v[1], v[5]], [v[4], v[5], v[2]]])
+    elif "diaginertia" in attrs:
+        T = _frame(ctx, attrs, where)
+        R = T[:3, :3]
+        inertia = R @ np.diag(_floats(ctx, attrs, "diaginertia", where, 3)) @ R.T
+    else:
+        raise ctx.error(where, "needs diaginertia or fullinertia")
+    return mass, T[:3, 3], 0.5 * (inertia + inertia.T)
+
+
+def _bound_inertial(ctx: _Ctx, inertial, lname: str):
+    """MuJoCo's per-body corrections: boundmass, boundinertia (on the principal moments), then the triangle
+    inequality A + B >= C of the principal moments (balanceinertia replaces them by their mean, else an error)."""
+    mass, com, inertia = inertial
+    mass = max(mass, ctx.boundmass)
+    eig, vec = np.linalg.eigh(inertia)
+    if ctx.boundinertia > 0 and (eig < ctx.boundinertia).any():
+        eig = np.maximum(eig, ctx.boundinertia)
+        inertia = vec @ np.diag(eig) @ vec.T
+    if eig[0] + eig[1] < eig[2] * (1 - 1e-9):
+        if not ctx.balanceinertia:
+            raise ctx.error(f'<body name="{lname}">', "inertia must satisfy A + B >= C (MuJoCo's "
+                                                     "compiler balanceinertia='true' fixes it)")
+        inertia = np.eye(3) * eig.mean()
+    return mass, com, inertia
 
 
 def _add_children(ctx: _Ctx, tree: _Tree, elem: ET.Element, link: int, F: np.ndarray, cls: str) -> None:
@@ -259,9 +344,11 @@ def _add_children(ctx: _Ctx, tree: _Tree, elem: ET.Element, link: int, F: np.nda
         elif tag in ("joint", "freejoint"):
             _add_joint(ctx, tree, ch, link, F, cls)
         elif tag == "geom":
-            g = _geom(ctx, ch, lname, F, cls)
+            g, inertial = _geom(ctx, ch, lname, F, cls, tree.from_geoms[link] is not None)
             if g is not None:
                 tree.geoms.append(g)
+            if inertial is not None:
+                tree.from_geoms[link].append(inertial)
         elif tag in _REFUSED_TAGS:
             raise ctx.error(f"{_where(ch)} in body {lname!r}", f"<{tag}> is not supported; expand it first")
 
@@ -311,16 +398,25 @@ def _add_joint(ctx: _Ctx, tree: _Tree, elem: ET.Element, link: int, F: np.ndarra
         tree.joints.append(s)
 
 
-def _geom(ctx: _Ctx, elem: ET.Element, lname: str, F: np.ndarray, cls: str) -> GeomSpec | None:
+def _geom(ctx: _Ctx, elem: ET.Element, lname: str, F: np.ndarray, cls: str, inertia: bool):
+    """(collision GeomSpec or None, inertial (mass, com, inertia) in the body frame or None).
+
+    The inertial is computed when ``inertia`` (the body's mass comes from its geoms) and the geom's group is in
+    the compiler's inertiagrouprange; visual geoms count too, as in MuJoCo.
+    """
     attrs = _resolve(ctx, elem, cls)
     where = f"{_where(elem)} in body {lname!r}"
     try:
         visual = int(attrs.get("contype", "1")) == 0 and int(attrs.get("conaffinity", "1")) == 0
+        group = int(attrs.get("group", "0"))
     except ValueError:
-        raise ctx.error(where, "contype/conaffinity must be integers") from None
-    if visual:
-        return None
+        raise ctx.error(where, "contype/conaffinity/group must be integers") from None
+    inertia = inertia and ctx.inertiagrouprange[0] <= group <= ctx.inertiagrouprange[1]
+    if visual and not inertia:
+        return None, None
     gtype = attrs.get("type", "sphere")
+    if gtype == "plane" and visual:
+        return None, None  # MuJoCo gives planes no volume
     if gtype in ("plane", "hfield", "sdf"):
         raise ctx.error(where, f"geom type {gtype!r} is not supported on a hand")
     if gtype not in GEOM_TYPES and gtype != "ellipsoid":
@@ -343,17 +439,40 @@ def _geom(ctx: _Ctx, elem: ET.Element, lname: str, F: np.ndarray, cls: str) -> G
     if (size[:need] <= 0).any():
         raise ctx.error(where, f"a {gtype} needs {need} positive size values, got {attrs.get('size')!r}")
     name = attrs.get("name")
+    mesh = None
     if gtype == "mesh":
         if "mesh" not in attrs:
             raise ctx.error(where, "a mesh geom needs mesh=")
-        V, Fc = _load_mesh(ctx, attrs["mesh"], where)
-        return GeomSpec(lname, "mesh", np.zeros(3), pose, (V, Fc), name)
-    if gtype == "ellipsoid":
+        mesh = _load_mesh(ctx, attrs["mesh"], where)
+        spec = GeomSpec(lname, "mesh", np.zeros(3), pose, mesh, name)
+    elif gtype == "ellipsoid":
         import trimesh
 
         s = trimesh.creation.icosphere(subdivisions=3)
-        return GeomSpec(lname, "mesh", np.zeros(3), pose, (np.asarray(s.vertices) * size, np.asarray(s.faces)), name)
-    return GeomSpec(lname, gtype, size[: max(need, 1)] if gtype != "box" else size, pose, None, name)
+        spec = GeomSpec(lname, "mesh", np.zeros(3), pose, (np.asarray(s.vertices) * size, np.asarray(s.faces)), name)
+    else:
+        spec = GeomSpec(lname, gtype, size[: max(need, 1)] if gtype != "box" else size, pose, None, name)
+    inertial = _geom_inertial(ctx, attrs, gtype, size, pose, mesh, where) if inertia else None
+    return (None if visual else spec), inertial
+
+
+def _geom_inertial(ctx: _Ctx, attrs: dict, gtype: str, size, pose, mesh, where: str):
+    """MuJoCo's geom inertia (volume type): ``mass`` if given, else ``density`` (default 1000 kg/m^3) times the
+    volume; meshes by their asset's ``inertia`` mode (MuJoCo's default "legacy", "exact", "convex"), with MuJoCo's
+    float32 rounding of vertices."""
+    if attrs.get("shellinertia", "false") == "true":
+        raise ctx.error(where, "shellinertia is not supported")
+    mass = float(_floats(ctx, attrs, "mass", where, 1)[0]) if "mass" in attrs else None
+    density = float(_floats(ctx, attrs, "density", where, 1, default=(_dyn.DEFAULT_DENSITY,))[0])
+    if gtype == "mesh":
+        mode = ctx.mesh_assets[attrs["mesh"]].get("inertia", "legacy")
+        if mode not in ("legacy", "exact", "convex"):
+            raise ctx.error(f'<mesh name="{attrs["mesh"]}">', f"mesh inertia {mode!r} is not supported; "
+                                                              "expected legacy, exact or convex")
+        local = _dyn.mesh_inertial(mesh[0], mesh[1], density, mass, mode, float32=True)  # MuJoCo's float32 vertices
+    else:
+        local = _dyn.primitive_inertial(gtype, size, density, mass)
+    return _dyn.transform_inertial(local, pose)
 
 
 def _custom_annotations(ctx: _Ctx, root: ET.Element) -> dict | None:
@@ -456,5 +575,11 @@ def load_mjcf(path, *, root_body: str | None = None, side: str | None = None, na
         q_rest = None
     model_name = xml_root.get("model") or path.stem
     side = side or _detect_side(path, model_name, tree.links)
+    inertials = tree.inertials
+    if ctx.settotalmass > 0:  # MuJoCo's mj_setTotalmass over the hand's bodies
+        total = sum(m for m, _, _ in inertials)
+        k = ctx.settotalmass / total if total > 0 else 0.0
+        inertials = [(m * k, c, I * k) for m, c, I in inertials] if k > 0 else inertials
+    specs = [InertialSpec(l.name, m, c, I) for l, (m, c, I) in zip(tree.links, inertials)]
     return build_hand_model(name or model_name, tree.links, tree.joints, tree.geoms, fingers, side=side,
-                            length=length, q_rest=q_rest)
+                            length=length, q_rest=q_rest, inertials=specs)

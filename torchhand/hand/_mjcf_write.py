@@ -31,13 +31,51 @@ def _set_pose(e: ET.Element, T: np.ndarray) -> None:
         e.set("quat", _fmt(_mat_to_quat(T[:3, :3])))
 
 
+# Written for a link of zero mass (and for the wrapper body): MuJoCo refuses massless moving bodies.
+TINY_MASS = 1e-9  # kg
+TINY_INERTIA = 1e-12  # kg m^2, each principal moment
+
+
+def _set_inertial(b: ET.Element, name: str, mass: float, com: np.ndarray, inertia: np.ndarray) -> None:
+    """``<inertial pos quat mass diaginertia>`` in the link frame: the principal axes (quat) and moments of the
+    inertia about the centre of mass; zero mass: TINY_MASS, TINY_INERTIA at the origin.
+
+    Principal axes are written rather than ``fullinertia`` because MuJoCo diagonalises a ``fullinertia`` with a
+    Jacobi iteration that stops at rotations of about 1e-6 rad (its kEigEPS = 1e-12), losing about 1e-9 relative
+    precision; NumPy's eigh is exact to rounding. MuJoCo needs principal moments satisfying A + B >= C exactly:
+    moments below TINY_INERTIA are raised to it, a violation within rounding (1e-9 relative) is closed, a larger
+    one is refused.
+    """
+    if not mass > 0:
+        ET.SubElement(b, "inertial", pos="0 0 0", mass=repr(TINY_MASS), diaginertia=_fmt([TINY_INERTIA] * 3))
+        return
+    eig, vec = np.linalg.eigh(0.5 * (inertia + inertia.T))  # ascending
+    eig = np.maximum(eig, TINY_INERTIA)
+    if eig[0] + eig[1] < eig[2]:
+        if eig[0] + eig[1] < eig[2] * (1 - 1e-9):
+            raise InputValueError(f"link {name!r}: inertia violates the triangle inequality A + B >= C of its "
+                                  f"principal moments {eig.tolist()}; MuJoCo cannot load it")
+        eig[2] = eig[0] + eig[1]
+    if np.linalg.det(vec) < 0:
+        vec[:, 0] = -vec[:, 0]
+    e = ET.SubElement(b, "inertial", pos=_fmt(com))
+    if np.any(vec != np.eye(3)):
+        e.set("quat", _fmt(_mat_to_quat(vec)))
+    e.set("mass", repr(float(mass)))
+    e.set("diaginertia", _fmt(eig))
+
+
 def hand_to_mjcf(hand: HandModel) -> str:
     """The hand as a self-contained MJCF string that MuJoCo loads (see :mod:`torchhand.hand.mjcf`).
 
     hand: any HandModel (any device or dtype; written from float64 CPU copies)
     returns: XML text; MuJoCo's qpos = (root position (3), root quaternion wxyz (4), q (D)) gives body poses equal to
-        ``hand.forward_kinematics(q, root)``; nq = 7 + D
-    raises: InputValueError for a mesh MuJoCo cannot compile (fewer than 4 vertices or flat)
+        ``hand.forward_kinematics(q, root)``; nq = 7 + D. Every body carries its link's inertial (``link_mass``,
+        ``link_com``, ``link_inertia`` as ``<inertial pos quat mass diaginertia>``: principal axes and moments), with
+        ``inertiafromgeom="false"``; a massless link, and the ``torchhand_root`` wrapper body, get TINY_MASS (1e-9 kg)
+        and TINY_INERTIA (1e-12 kg m^2) at their origin, which MuJoCo needs for moving bodies.
+    raises: InputValueError for a mesh MuJoCo cannot compile (fewer than 4 vertices or flat) or an inertia whose
+        principal moments violate A + B >= C
     """
     h = hand.to(device="cpu", dtype=torch.float64)
     ch, gm = h.chain, h.geoms
@@ -88,7 +126,7 @@ def hand_to_mjcf(hand: HandModel) -> str:
         b = ET.SubElement(parent_elem, "body", name=h.link_names[l])
         if l:
             _set_pose(b, offsets[l])
-        ET.SubElement(b, "inertial", pos="0 0 0", mass="0.001", diaginertia="1e-07 1e-07 1e-07")
+        _set_inertial(b, h.link_names[l], float(h.link_mass[l]), h.link_com[l].numpy(), h.link_inertia[l].numpy())
         if with_free:
             ET.SubElement(b, "freejoint", name="root")
         for d in ch.link_joints[l].tolist():
@@ -115,7 +153,7 @@ def hand_to_mjcf(hand: HandModel) -> str:
     root_has_joints = bool((ch.link_joints[0] < D).any()) if D else False
     if root_has_joints:
         wrapper = ET.SubElement(world, "body", name=_ROOT_WRAPPER)
-        ET.SubElement(wrapper, "inertial", pos="0 0 0", mass="0.001", diaginertia="1e-07 1e-07 1e-07")
+        _set_inertial(wrapper, _ROOT_WRAPPER, 0.0, np.zeros(3), np.zeros((3, 3)))
         ET.SubElement(wrapper, "freejoint", name="root")
         body(wrapper, 0, False)
     else:

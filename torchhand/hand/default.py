@@ -16,6 +16,13 @@ hands.
 Proportions are those of an adult hand of 0.19 m (wrist to middle fingertip) and scale linearly with ``length``.
 Joint ranges are the usual active ranges of motion, rounded. Collision geometry is one capsule per link plus a carpal
 capsule on the palm link.
+
+Mass: the hand segment (wrist axis to knuckle II of the middle finger) is 0.006 of body mass (Dempster 1955, as
+tabulated in D. A. Winter, *Biomechanics and Motor Control of Human Movement*, 4th ed., Wiley 2009, Table 4.1).
+For a 70 kg adult that is 0.42 kg at the reference length of 0.19 m, scaled with ``length ** 3``
+(``HAND_MASS_FRACTION``, ``REFERENCE_BODY_MASS``). It is split between the links by the volume of their collision
+geometry: one uniform density (about 1390 kg/m^3, above that of tissue because the capsules are slimmer than the
+hand), and each link's centre of mass and inertia are those of its capsules at that density.
 """
 
 from __future__ import annotations
@@ -27,11 +34,14 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from ..errors import InputValueError
+from .dynamics import geom_inertial
 from .model import FingerSpec, GeomSpec, HandModel, JointSpec, LinkSpec, build_hand_model
 
-__all__ = ["default_hand", "FINGER_NAMES", "REFERENCE_LENGTH"]
+__all__ = ["default_hand", "FINGER_NAMES", "REFERENCE_LENGTH", "HAND_MASS_FRACTION", "REFERENCE_BODY_MASS"]
 
 REFERENCE_LENGTH = 0.19
+HAND_MASS_FRACTION = 0.006  # hand / body mass (Dempster 1955; Winter 2009, Table 4.1)
+REFERENCE_BODY_MASS = 70.0  # kg, the adult whose hand is REFERENCE_LENGTH long
 FINGER_NAMES = ("thumb", "index", "middle", "ring", "little")
 _D2R = math.pi / 180
 
@@ -95,7 +105,8 @@ def default_hand(side: str = "right", length: float = REFERENCE_LENGTH, *, dtype
 
     side:   "right" or "left"
     length: wrist to middle fingertip, metres (proportions scale linearly)
-    returns: HandModel with D = 30 joints, L = 20 links, F = 5 fingers (thumb, index, middle, ring, little)
+    returns: HandModel with D = 30 joints, L = 20 links, F = 5 fingers (thumb, index, middle, ring, little);
+        total mass ``HAND_MASS_FRACTION * REFERENCE_BODY_MASS * (length / REFERENCE_LENGTH) ** 3`` kg
     """
     if side not in ("right", "left"):
         raise InputValueError(f"side: expected 'right' or 'left', got {side!r}")
@@ -168,8 +179,11 @@ def default_hand(side: str = "right", length: float = REFERENCE_LENGTH, *, dtype
     if side == "left":
         links, joints, geoms, fingers = _mirror(links, joints, geoms, fingers)
     q_rest = np.array([rest[j.name] for j in joints])
+    # One density that gives the anthropometric mass: the mass split by collision-geometry volume.
+    volume = sum(geom_inertial(g, 1.0)[0] for g in geoms)
+    density = HAND_MASS_FRACTION * REFERENCE_BODY_MASS * s ** 3 / volume
     hand = build_hand_model(f"default_{side}", links, joints, geoms, fingers, side=side, length=float(length),
-                            q_rest=q_rest)
+                            q_rest=q_rest, density=density)
     if dtype != torch.float64 or device is not None:
         hand = hand.to(device=device, dtype=dtype)
     return hand

@@ -31,7 +31,13 @@ Import: :func:`load_mjcf` (also ``HandModel.from_mjcf``)
       geom pose is the one written in the XML, so the geometry in the body frame is identical to MuJoCo's:
       ``GeomSpec.pose @ T(mesh_pos, mesh_quat) == T(model.geom_pos, model.geom_quat)``.
     * ``<include>``, ``<replicate>``, ``<attach>``, ``<composite>`` and ``<flexcomp>`` are refused with a clear
-      error; tendons, equalities, actuators, sites, cameras, lights and inertials are ignored.
+      error; tendons, equalities, actuators, sites, cameras and lights are ignored.
+    * Inertials: each body's ``<inertial>`` (``pos``, orientation, ``mass``, ``diaginertia`` or ``fullinertia``)
+      becomes the link's ``link_mass``, ``link_com``, ``link_inertia``; without one, and with
+      ``<compiler inertiafromgeom>`` true or auto, they come from the body's geoms as MuJoCo computes them
+      (``inertiagrouprange``, ``boundmass``, ``boundinertia``, ``balanceinertia``, ``settotalmass`` honoured;
+      shell inertia refused). Equal to MuJoCo's ``body_mass``, ``body_ipos``, ``body_inertia`` (tests/torchhand/
+      test_dynamics.py).
 
     Fingers (heuristic; a file written by :func:`hand_to_mjcf` stores its annotations in ``<custom>`` and those win):
     every leaf body whose chain below the nearest branching body (a body with two or more child bodies, e.g. the
@@ -54,8 +60,8 @@ Import: :func:`load_mjcf` (also ``HandModel.from_mjcf``)
 
 Export: :func:`hand_to_mjcf` (also ``HandModel.to_mjcf``) and :func:`save_mjcf`
     A self-contained MJCF string for any hand: bodies named ``link_names``, hinge/slide joints named ``joint_names``
-    with ``limited="true"`` ranges from ``joint_limits``, ``angle="radian"``, an ``<inertial>`` on every body
-    (1 g, 1e-7 kg m^2), the root body at the identity carrying ``<freejoint name="root"/>``, so that for
+    with ``limited="true"`` ranges from ``joint_limits``, ``angle="radian"``, an ``<inertial>`` on every body (the
+    link's mass, centre of mass and principal inertia; 1e-9 kg for massless links, which MuJoCo refuses), the root body at the identity carrying ``<freejoint name="root"/>``, so that for
     ``qpos = (root position (3), root quaternion wxyz (4), q (D))`` MuJoCo's body poses equal
     ``hand.forward_kinematics(q, root)``. (qpos[7:] follows joint_names exactly when joints are listed depth first
     along the tree, as in the default hand and every loaded hand; otherwise map through ``model.jnt_qposadr``.) When

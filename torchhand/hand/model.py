@@ -20,6 +20,7 @@ import torch
 from torchhand.kernels.kinematics import JOINT_HINGE, JOINT_SLIDE, Chain
 from torchhand.kernels import kinematics as _kin
 
+from . import dynamics as _dyn
 from .._tree import tree_to
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputValueError, ShapeError, UnknownNameError
@@ -30,6 +31,7 @@ __all__ = [
     "JointSpec",
     "GeomSpec",
     "FingerSpec",
+    "InertialSpec",
     "LinkGeoms",
     "HandModel",
     "build_hand_model",
@@ -91,6 +93,17 @@ class FingerSpec:
     flexion_joints: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class InertialSpec:
+    """Mass properties of a link: mass, kg; com: centre of mass in the link frame, (3,), metres; inertia: about the
+    centre of mass in link-frame axes, (3, 3), kg m^2 (symmetric positive semi-definite)."""
+
+    link: str
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # The model
 # ----------------------------------------------------------------------------------------------------------------
@@ -133,6 +146,11 @@ class HandModel:
     distal_link (F,) long; nail_normal (F, 3) unit, distal-link frame; fingertip (F, 3) pad point, distal frame;
     flexion_joints (F, 3) long joint indices for Eq. 11, -1 where not applicable
     collision_pairs (Q, 2) long: link pairs of different fingers checked for finger-finger interpenetration
+    link_mass: mass of each link, (L,), kg
+    link_com: centre of mass of each link in its frame, (L, 3), metres
+    link_inertia: inertia of each link about its centre of mass in link-frame axes, (L, 3, 3), kg m^2
+        (the three inertial fields default to zero: a model constructed without them is massless; see
+        :func:`build_hand_model` and :mod:`torchhand.hand.dynamics`)
     """
 
     name: str
@@ -159,6 +177,20 @@ class HandModel:
     flexion_joints: torch.Tensor
     collision_pairs: torch.Tensor
     _index: dict = field(default_factory=dict, compare=False, repr=False)
+    link_mass: torch.Tensor | None = None
+    link_com: torch.Tensor | None = None
+    link_inertia: torch.Tensor | None = None
+
+    def __post_init__(self):
+        L = len(self.link_names)
+        like = self.joint_limits
+        if self.link_mass is None:
+            object.__setattr__(self, "link_mass", like.new_zeros(L))
+        if self.link_com is None:
+            object.__setattr__(self, "link_com", like.new_zeros(L, 3))
+        if self.link_inertia is None:
+            object.__setattr__(self, "link_inertia", like.new_zeros(L, 3, 3))
+        _dyn._check_inertials(self.link_mass, self.link_com, self.link_inertia, L)
 
     # --- sizes and names --------------------------------------------------------------------------------------
     @property
@@ -172,6 +204,11 @@ class HandModel:
     @property
     def num_fingers(self) -> int:
         return len(self.finger_names)
+
+    @property
+    def total_mass(self) -> float:
+        """Sum of ``link_mass``, kg (a host sync on GPUs)."""
+        return float(self.link_mass.sum())
 
     @property
     def dtype(self) -> torch.dtype:
@@ -231,15 +268,21 @@ class HandModel:
         return _kin.forward_kinematics(self._chain(q), q, root)
 
     def point_jacobian(self, q: torch.Tensor, link_index, points_local: torch.Tensor,
-                       root: torch.Tensor | None = None, *, check: bool = False) -> torch.Tensor:
+                       root: torch.Tensor | None = None, *, wrt_root: bool = False,
+                       check: bool = False) -> torch.Tensor:
         """Analytic Jacobian of points fixed on links.
 
         q:            (B, D), radians / metres
         link_index:   link of each point, (P,), long
         points_local: points in their link's frame, (P, 3) or (B, P, 3), metres
         root:         (B, 4, 4) or None (identity)
-        returns: d p_world / d q, (B, P, 3, D)
+        wrt_root:     False: d p_world / d q, (B, P, 3, D); True: (B, P, 3, 6 + D) with the root twist's columns
+                      first (world angular velocity, then world velocity of the root origin ``root[:, :3, 3]``;
+                      see :func:`torchhand.hand.dynamics.point_jacobian`)
+        returns: the Jacobian, (B, P, 3, D) or (B, P, 3, 6 + D)
         """
+        if wrt_root:
+            return _dyn.point_jacobian(self, q, link_index, points_local, root, check=check)
         return self.points_and_jacobian(q, link_index, points_local, root, check=check)[1]
 
     def points_and_jacobian(self, q, link_index, points_local, root=None, *, check: bool = False):
@@ -269,6 +312,23 @@ class HandModel:
         q, root = self._inputs(q, root, check)
         link_index, points_local = self._point_args(q, link_index, points_local)
         return _kin.fk_and_point_jacobian(self._chain(q), q, root, link_index, points_local)
+
+    # --- dynamics (coordinates: root twist (w, v), then q; see torchhand.hand.dynamics) ------------------------
+    def mass_matrix(self, q: torch.Tensor, root: torch.Tensor | None = None, *, check: bool = False):
+        """Joint-space inertia matrix, (B, 6 + D, 6 + D) (:func:`torchhand.hand.dynamics.mass_matrix`)."""
+        return _dyn.mass_matrix(self, q, root, check=check)
+
+    def gravity_torques(self, q: torch.Tensor, root: torch.Tensor | None = None, gravity=(0.0, 0.0, -9.81), *,
+                        check: bool = False):
+        """Generalized force holding the hand against gravity, (B, 6 + D)
+        (:func:`torchhand.hand.dynamics.gravity_torques`)."""
+        return _dyn.gravity_torques(self, q, root, gravity, check=check)
+
+    def contact_torques(self, q: torch.Tensor, root: torch.Tensor | None, link_index, points_local: torch.Tensor,
+                        forces: torch.Tensor, *, check: bool = False):
+        """J^T f of world forces (B, P, 3) at link-fixed points, (B, 6 + D)
+        (:func:`torchhand.hand.dynamics.contact_torques`)."""
+        return _dyn.contact_torques(self, q, root, link_index, points_local, forces, check=check)
 
     def clamp_to_limits(self, q: torch.Tensor) -> torch.Tensor:
         """q clamped into ``joint_limits``, (B, D)."""
@@ -310,6 +370,8 @@ def build_hand_model(
     side: str = "none",
     length: float = 0.0,
     q_rest: np.ndarray | None = None,
+    inertials: list[InertialSpec] = (),
+    density: float = _dyn.DEFAULT_DENSITY,
     samples_per_area: float = 60000.0,
     min_samples_per_link: int = 24,
     dtype: torch.dtype = torch.float64,
@@ -317,6 +379,11 @@ def build_hand_model(
     """Build a :class:`HandModel` from specs (float64 NumPy in, tensors of ``dtype`` out, on the CPU).
 
     Links must be listed parents first with the root first. Joints of one link are applied in the order given.
+    Inertials: a link listed in ``inertials`` (at most once) takes that mass, centre of mass and inertia; any other
+    link is a solid of uniform ``density`` (kg/m^3; default 1000, MuJoCo's default geom density) filling its
+    collision geoms, summed per link with the parallel-axis theorem (overlaps count twice, as in MuJoCo): capsule,
+    sphere, cylinder and box analytically (MuJoCo's formulas), meshes by exact signed-tetrahedron integration (the
+    convex hull when the mesh is not closed); a link without geometry has zero mass.
     Surface samples: ``samples_per_area`` per square metre of geometry (at least ``min_samples_per_link`` per link
     with geometry), placed deterministically.
     """
@@ -406,6 +473,7 @@ def build_hand_model(
         mesh_index=t(np.array(mesh_index, dtype=np.int64).reshape(G), torch.long),
         meshes=tuple(meshes),
     )
+    mass, com, inertia = _dyn.link_inertials(name, link_names, geoms, inertials, density)
     cap_a, cap_b, cap_r = _fit_capsules(L, geoms, lidx)
     pts, nrm, lnk = _surface_samples(L, geoms, lidx, samples_per_area, min_samples_per_link)
 
@@ -463,6 +531,9 @@ def build_hand_model(
         fingertip=t(np.array([f.tip for f in fingers], dtype=np.float64).reshape(F, 3)),
         flexion_joints=t(flex, torch.long),
         collision_pairs=t(np.array(pairs, dtype=np.int64).reshape(-1, 2), torch.long),
+        link_mass=t(mass),
+        link_com=t(com),
+        link_inertia=t(inertia),
     )
 
 
