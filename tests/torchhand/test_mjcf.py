@@ -411,3 +411,34 @@ def test_missing_mesh_is_a_missing_file_error(tmp_path):
 def test_save_mjcf_into_missing_folder(tmp_path):
     with pytest.raises(MissingFileError, match="folder not found"):
         save_mjcf(torchhand.default_hand(), tmp_path / "no" / "hand.xml")
+
+
+@pytest.mark.parametrize("name", ["shadow_hand", "allegro_hand"])
+def test_mounted_hand_round_trips_through_mujoco(tmp_path, name):
+    """A hand mounted on its hand frame (root link offset not the identity, torchhand.hand.mount) is written with
+    a wrapper body carrying the free joint: MuJoCo's body poses for qpos = (root, q) equal torchhand's FK, and
+    load_mjcf reads the offset back."""
+    import dataclasses
+
+    from torchhand.hand.mount import track_hand
+
+    track = dataclasses.replace(torchhand.load_scene("box-turn").hands[0], model=str(_hand_file(name,
+                                                                                                 "right_hand.xml")))
+    hand = track_hand(track)
+    assert not torch.allclose(hand.chain.link_offset[0], torch.eye(4, dtype=hand.chain.link_offset.dtype))
+    m = mujoco.MjModel.from_xml_string(hand.to_mjcf())
+    d = mujoco.MjData(m)
+    gen = torch.Generator().manual_seed(9)
+    q = hand.random_q(6, gen).double()
+    pos, quat = _random_roots(6, gen)
+    root = torch.as_tensor(np.stack([_pose(_quat_to_mat(qq), p) for p, qq in zip(pos, quat)]))
+    ours = hand.forward_kinematics(q, root).numpy()
+    ref = np.empty_like(ours)
+    for b in range(6):
+        d.qpos[:] = np.concatenate([pos[b], quat[b], q[b].numpy()])
+        mujoco.mj_kinematics(m, d)
+        ref[b] = _mj_body_poses(m, d, hand.link_names)
+    ep, er = _fk_errors(ours, ref)
+    assert ep < TOL and er < TOL
+    back = load_mjcf(save_mjcf(hand, tmp_path / f"{name}.xml"))
+    torch.testing.assert_close(back.forward_kinematics(q, root), hand.forward_kinematics(q, root), atol=TOL, rtol=0)

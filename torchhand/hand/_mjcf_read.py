@@ -549,6 +549,7 @@ def load_mjcf(path, *, root_body: str | None = None, side: str | None = None, na
                 return hit
         return None
 
+    root_offset = np.eye(4)
     if root_body is not None:
         hit = next((h for h in (find(w, "main") for w in worlds) if h is not None), None)
         if hit is None:
@@ -559,9 +560,11 @@ def load_mjcf(path, *, root_body: str | None = None, side: str | None = None, na
         rb, cls = bodies[0], "main"
         inner = rb.findall("body")
         if rb.get("name") == _ROOT_WRAPPER and len(inner) == 1:
+            # the wrapper carries the free joint (the FK root); the root link's pose in it is its offset
             cls, rb = rb.get("childclass", cls), inner[0]
+            root_offset = _frame(ctx, rb.attrib, _where(rb))
     tree = _Tree()
-    _add_body(ctx, tree, rb, -1, np.eye(4), cls)
+    _add_body(ctx, tree, rb, -1, root_offset, cls)
 
     stored = _custom_annotations(ctx, xml_root)
     if stored is not None:

@@ -31,6 +31,8 @@ def _set_pose(e: ET.Element, T: np.ndarray) -> None:
         e.set("quat", _fmt(_mat_to_quat(T[:3, :3])))
 
 
+LOCKED_HALF_WIDTH = 1e-9  # radians / metres: the range written for a joint whose limits coincide
+
 # Written for a link of zero mass (and for the wrapper body): MuJoCo refuses massless moving bodies.
 TINY_MASS = 1e-9  # kg
 TINY_INERTIA = 1e-12  # kg m^2, each principal moment
@@ -124,7 +126,7 @@ def hand_to_mjcf(hand: HandModel) -> str:
 
     def body(parent_elem: ET.Element, l: int, with_free: bool) -> None:
         b = ET.SubElement(parent_elem, "body", name=h.link_names[l])
-        if l:
+        if l or parent_elem.get("name") == _ROOT_WRAPPER:
             _set_pose(b, offsets[l])
         _set_inertial(b, h.link_names[l], float(h.link_mass[l]), h.link_com[l].numpy(), h.link_inertia[l].numpy())
         if with_free:
@@ -138,7 +140,10 @@ def hand_to_mjcf(hand: HandModel) -> str:
                 j.set("pos", _fmt(ch.joint_anchor[d]))
             j.set("axis", _fmt(ch.joint_axis[d]))
             j.set("limited", "true")
-            j.set("range", _fmt(h.joint_limits[d]))
+            lo, hi = (float(v) for v in h.joint_limits[d])
+            if hi <= lo:              # a locked joint (torchhand.hand.mount): MuJoCo needs range[0] < range[1]
+                lo, hi = lo - LOCKED_HALF_WIDTH, hi + LOCKED_HALF_WIDTH
+            j.set("range", _fmt(np.array([lo, hi])))
         for n, g in enumerate(geoms_of[l]):
             gtype = GEOM_TYPES[int(gm.type[g])]
             e = ET.SubElement(b, "geom", name=f"{h.link_names[l]}_geom{n}", type=gtype)
@@ -151,7 +156,10 @@ def hand_to_mjcf(hand: HandModel) -> str:
             body(b, c, False)
 
     root_has_joints = bool((ch.link_joints[0] < D).any()) if D else False
-    if root_has_joints:
+    # a root link with its own joints (no free joint beside them) or with an offset (a mounted hand) hangs from a
+    # wrapper body carrying the free joint, at its offset
+    root_offset = not np.allclose(offsets[0], np.eye(4), rtol=0.0, atol=1e-15)
+    if root_has_joints or root_offset:
         wrapper = ET.SubElement(world, "body", name=_ROOT_WRAPPER)
         _set_inertial(wrapper, _ROOT_WRAPPER, 0.0, np.zeros(3), np.zeros((3, 3)))
         ET.SubElement(wrapper, "freejoint", name="root")

@@ -65,8 +65,10 @@ Export: :func:`hand_to_mjcf` (also ``HandModel.to_mjcf``) and :func:`save_mjcf`
     ``qpos = (root position (3), root quaternion wxyz (4), q (D))`` MuJoCo's body poses equal
     ``hand.forward_kinematics(q, root)``. (qpos[7:] follows joint_names exactly when joints are listed depth first
     along the tree, as in the default hand and every loaded hand; otherwise map through ``model.jnt_qposadr``.) When
-    the root link has joints of its own, MuJoCo allows no free joint beside them, and an extra top body
-    ``torchhand_root`` carries the free joint. Geoms keep their size and pose; meshes are written inline
+    the root link has joints of its own (MuJoCo allows no free joint beside them), or an offset of its own (a hand
+    mounted on its hand frame, :mod:`torchhand.hand.mount`), an extra top body ``torchhand_root`` carries the free
+    joint and the root link sits in it at its offset (read back as that offset). A locked joint (equal limits) is
+    written with a range of +/- 1e-9 around its value, since MuJoCo needs range[0] < range[1]. Geoms keep their size and pose; meshes are written inline
     (``<mesh vertex=... face=...>``): MuJoCo re-centres them as above, which leaves the world geometry unchanged
     (meshes MuJoCo cannot compile, i.e. flat or with fewer than 4 vertices, are refused). Side, length, q_rest and the
     finger annotations go into ``<custom>`` so that :func:`load_mjcf` restores them.
