@@ -35,7 +35,7 @@ def test_rule_recovers_the_builtin_hand_frame(side):
     F = hand_frame(default_hand(side, 0.19))
     angle = math.degrees(math.acos(np.clip((np.trace(F[:3, :3]) - 1) / 2, -1, 1)))
     assert angle < 5.0, f"{side}: the rule's frame is {angle:.1f} degrees from the built-in hand's"
-    assert np.linalg.norm(F[:3, 3]) < 1e-9
+    assert np.linalg.norm(F[:3, 3]) < 0.006            # wrist end and palm depth within a few millimetres
 
 
 def tips_and_flexion(model):

@@ -643,8 +643,10 @@ def _surface_samples(L, geoms, lidx, density, min_per_link):
 
 
 def _fit_capsules(L, geoms, lidx):
-    """One capsule per link enclosing its geometry approximately (for finger-finger checks): a capsule geom is
-    used as is; otherwise the segment runs along the principal axis of the geometry's points."""
+    """One capsule per link approximating its geometry (finger-finger checks, penetration proxies): a capsule geom
+    is used as is; otherwise the segment runs along the principal axis of the geometry's points, with the 90th
+    percentile of their distance to the axis as radius, or the geometry's half-thickness (along its least principal
+    axis) when that is smaller (flat links)."""
     a = np.zeros((L, 3))
     b = np.zeros((L, 3))
     r = np.zeros(L)
@@ -667,7 +669,10 @@ def _fit_capsules(L, geoms, lidx):
         ax = vt[0]
         s = (p - c) @ ax
         radial = np.linalg.norm((p - c) - np.outer(s, ax), axis=1)
-        rad = float(np.percentile(radial, 90))
+        # a flat link (a robot palm plate) gets its half-thickness, not its half-width: a capsule around the
+        # whole plate would stand centimetres off its faces; the plate's faces are covered by the surface samples
+        thick = float(np.abs((p - c) @ vt[2]).max())
+        rad = min(float(np.percentile(radial, 90)), thick)
         lo, hi = s.min() + rad, s.max() - rad
         if lo > hi:
             lo = hi = 0.5 * (s.min() + s.max())

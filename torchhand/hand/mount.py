@@ -14,10 +14,10 @@ hand.
 * ``+x``: from the mean base (first link origin) of the long fingers to the mean of their fingertips;
 * ``+y``: across the knuckles, from the outermost long finger's base to the one on the thumb's side, made
   orthogonal to ``x``; negated for a left hand;
-* origin: the origin of the link the fingers branch from (the palm: Shadow's ``rh_palm``, which carries the wrist
-  joint ``WRJ1``; Allegro's ``palm``), moved along ``-x`` to the plane of the long fingers' bases less
-  ``palm_length`` (default: the distance from the branching link's origin to that plane, i.e. the origin itself
-  when it lies behind the bases, as in the Shadow hand).
+* origin: at the wrist end of the link the fingers branch from (the palm: Shadow's ``rh_palm``, Allegro's
+  ``palm``), with the palm's volar surface :data:`PALM_DEPTH` (1.5 cm) below it, as in the built-in hand: from that
+  link's origin, moved along ``x`` to the rearmost point of its geometry and along ``z`` so that its deepest point
+  lies ``PALM_DEPTH`` below (surface samples at ``q = 0``).
 
 Joints between the root and the link the fingers branch from (the Shadow hand's wrist ``WRJ1``, ``WRJ2``) are
 locked at ``q_rest`` (:func:`lock_palm_joints`): the wrist track gives the palm's pose.
@@ -44,7 +44,11 @@ import torch
 
 from ..errors import FileFormatError, InputValueError, MissingFileError
 
-__all__ = ["hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index", "track_hand"]
+PALM_DEPTH = 0.015
+"""Depth of the palm's volar surface below the hand frame's origin, metres (the built-in hand's, about 1.5 cm; the
+built-in scenes place the palm surface a few millimetres off the object with it)."""
+
+__all__ = ["PALM_DEPTH", "hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index", "track_hand"]
 
 
 def thumb_index(model) -> int | None:
@@ -95,10 +99,16 @@ def hand_frame(model) -> np.ndarray:
     for k in range(min(len(c) for c in chains)):
         if len({c[k] for c in chains}) == 1:
             common = chains[0][k]
-    origin = T[common, :3, 3].copy()
-    ahead = (b - origin) @ x
-    if ahead < 0.0:                                   # the palm origin lies beyond the knuckles: put it behind them
-        origin = origin + (ahead - 0.08) * x
+    # origin: on the palm's wrist end, its volar surface PALM_DEPTH below: the palm link's surface samples give
+    # the rearmost point along x and the deepest along -z, measured from the palm link's origin
+    o = T[common, :3, 3]
+    sel = m.sample_link == common
+    if bool(sel.any()):
+        Ts = T[m.sample_link[sel].numpy()]
+        P = np.einsum("sab,sb->sa", Ts[:, :3, :3], m.sample_points[sel].numpy()) + Ts[:, :3, 3]
+        origin = o + float(((P - o) @ x).min()) * x + (float(((P - o) @ z).min()) + PALM_DEPTH) * z
+    else:
+        origin = o.copy()
     F = np.eye(4)
     F[:3, 0], F[:3, 1], F[:3, 2], F[:3, 3] = x, y, z, origin
     return F
