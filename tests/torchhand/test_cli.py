@@ -67,3 +67,13 @@ def test_errors_are_one_line_with_exit_code_2(argv, needle, tmp_path):
     lines = [l for l in proc.stderr.splitlines() if l.strip()]
     assert len(lines) == 1 and lines[0].startswith("torchhand: error:") and needle in lines[0], proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_hand_show_prints_masses(capsys):
+    from torchhand.cli import main
+
+    assert main(["hand", "show"]) == 0
+    out = capsys.readouterr().out
+    assert "total mass 0.4200 kg" in out and "Winter" in out
+    assert main(["hand", "show", "--length", "0.095"]) == 0
+    assert "total mass 0.0525 kg" in capsys.readouterr().out          # length^3: 0.42 / 8

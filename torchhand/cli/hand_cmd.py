@@ -16,8 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     hs = p.add_subparsers(dest="hand_command", metavar="ACTION")
     hs.required = True
 
-    show = hs.add_parser("show", help="print links, joints and limits",
-                         description="Print a hand model's links, joints (with limits in degrees) and fingers.")
+    show = hs.add_parser("show", help="print links, joints, limits, fingers and masses",
+                         description="Print a hand model's joints (with limits in degrees), fingers and link masses "
+                                     "(kg, centre of mass in the link frame).")
     _source_args(show)
     show.set_defaults(func=_show)
 
@@ -60,7 +61,20 @@ def _show(args) -> int:
     for f, name in enumerate(hand.finger_names):
         links = [hand.link_names[int(i)] for i in hand.finger_links[f] if int(i) >= 0]
         print(f"  {name:<8} {' > '.join(links)}")
+    print(f"links (total mass {float(hand.link_mass.sum()):.4f} kg; {_mass_source(args, hand)}):")
+    for l, name in enumerate(hand.link_names):
+        com = ", ".join(f"{1000 * float(v):6.1f}" for v in hand.link_com[l])
+        print(f"  {l:2d} {name:<18} {1000 * float(hand.link_mass[l]):9.2f} g   com ({com}) mm")
     return 0
+
+
+def _mass_source(args, hand) -> str:
+    if args.mjcf:
+        return "the MJCF's <inertial> elements, or its geoms as MuJoCo computes them"
+    from ..hand.default import HAND_MASS_FRACTION, REFERENCE_BODY_MASS
+
+    return (f"{HAND_MASS_FRACTION:.3f} of a {REFERENCE_BODY_MASS:.0f} kg body at 0.19 m, scaled with length^3, "
+            "split by collision volume (Winter 2009, Table 4.1)")
 
 
 def _export(args) -> int:
