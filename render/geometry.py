@@ -68,8 +68,14 @@ def palm_hull(hand, sections: int = 24) -> trimesh.Trimesh | None:
 
 
 def hand_link_meshes(hand, sections: int = 32) -> list[tuple[int, trimesh.Trimesh]]:
-    """(link index, link-frame mesh) pairs that draw ``hand``: a capsule per link with geometry plus the palm hull
-    on the root link."""
+    """(link index, link-frame mesh) pairs that draw ``hand``. A hand whose collision geometry is all capsules (the
+    built-in hand): a capsule per link plus the palm hull on the root link. Any other (a robot hand from MJCF):
+    its own collision geoms, boxes and meshes as they are."""
+    from torchhand.hand._link_geometry import link_geom_meshes
+    from torchhand.hand.model import GEOM_TYPES
+
+    if any(GEOM_TYPES[t] != "capsule" for t in hand.geoms.type.tolist()):
+        return [(li, trimesh.util.concatenate(ms)) for li, ms in sorted(link_geom_meshes(hand).items())]
     a, b = hand.capsule_a.detach().cpu().double().numpy(), hand.capsule_b.detach().cpu().double().numpy()
     r = hand.capsule_radius.detach().cpu().double().numpy()
     out = []

@@ -44,6 +44,7 @@ import trimesh
 
 from .._atomic import atomic_bytes
 from ..errors import InputTypeError, InputValueError
+from ..hand._link_geometry import link_geom_meshes
 from ..hand.model import GEOM_TYPES
 
 __all__ = ["Y_UP_ROTATION", "COLORS", "solution_glb", "write_solution_glb", "link_node_names"]
@@ -188,36 +189,23 @@ def _contacts(w: "_Writer", world: int, mask: np.ndarray, point: np.ndarray, rad
 
 
 def _link_meshes(model) -> dict:
-    """link index -> (vertices (V, 3), normals (V, 3), faces (F, 3)) of the link's geoms merged, link frame."""
-    g = model.geoms
-    kinds = [GEOM_TYPES[i] for i in g.type.tolist()]
-    size = g.size.detach().cpu().double().numpy()
-    pose = g.pose.detach().cpu().double().numpy()
-    parts: dict = {}
-    for i, (link, kind) in enumerate(zip(g.link.tolist(), kinds)):
-        r, h = float(size[i, 0]), float(size[i, 1])
-        if kind == "capsule":     # trimesh: centred, along z, cylinder part `height` long
-            m = trimesh.creation.capsule(height=2 * h, radius=r, count=[12, 8])
-            v, n, f = m.vertices, m.vertex_normals, m.faces
-        elif kind == "sphere":
-            m = trimesh.creation.icosphere(subdivisions=2, radius=r)
-            v, n, f = m.vertices, m.vertex_normals, m.faces
-        elif kind == "cylinder":  # trimesh: centred, along z
-            m = trimesh.creation.cylinder(radius=r, height=2 * h, sections=16)
-            v, n, f = _flat(m.vertices, m.faces)
-        elif kind == "box":
-            m = trimesh.creation.box(extents=2 * size[i])
-            v, n, f = _flat(m.vertices, m.faces)
-        else:
-            mv, mf = model.geoms.meshes[int(g.mesh_index[i])]
-            v, n, f = _flat(mv.detach().cpu().double().numpy(), mf.detach().cpu().numpy())
-        R, p = pose[i, :3, :3], pose[i, :3, 3]
-        parts.setdefault(link, []).append((np.asarray(v) @ R.T + p, np.asarray(n) @ R.T, np.asarray(f)))
+    """link index -> (vertices (V, 3), normals (V, 3), faces (F, 3)) of the link's geoms merged, link frame:
+    capsules and spheres smooth-shaded, boxes, cylinders and meshes flat."""
+    kinds = [GEOM_TYPES[i] for i in model.geoms.type.tolist()]
+    per_link: dict = {}
+    for i, link in enumerate(model.geoms.link.tolist()):
+        per_link.setdefault(link, []).append(kinds[i])
     out = {}
-    for link, ps in parts.items():
-        offsets = np.cumsum([0] + [len(v) for v, _, _ in ps[:-1]])
-        out[link] = (np.concatenate([v for v, _, _ in ps]), np.concatenate([n for _, n, _ in ps]),
-                     np.concatenate([f + o for (_, _, f), o in zip(ps, offsets)]))
+    for link, meshes in link_geom_meshes(model, sections=12).items():
+        parts = []
+        for kind, m in zip(per_link[link], meshes):
+            if kind in ("capsule", "sphere"):
+                parts.append((np.asarray(m.vertices), np.asarray(m.vertex_normals), np.asarray(m.faces)))
+            else:
+                parts.append(_flat(m.vertices, m.faces))
+        offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
+        out[link] = (np.concatenate([v for v, _, _ in parts]), np.concatenate([n for _, n, _ in parts]),
+                     np.concatenate([f + o for (_, _, f), o in zip(parts, offsets)]))
     return out
 
 
