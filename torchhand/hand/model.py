@@ -144,7 +144,8 @@ class HandModel:
         (0 for links without geometry)
     sample_points (S, 3) link-local, metres; sample_normals (S, 3) outward unit; sample_link (S,) long
     finger_names (F,); finger_links (F, 4) long link indices proximal -> distal, padded with -1;
-    link_finger (L,) long finger index of each link, -1 for the palm;
+    link_finger (L,) long finger index of each link, -1 for the palm; links between the palm and a finger's first
+        link (a robot finger's base, not in finger_links) count as that finger's;
     distal_link (F,) long; nail_normal (F, 3) unit, distal-link frame; fingertip (F, 3) pad point, distal frame;
     flexion_joints (F, 3) long joint indices for Eq. 11, -1 where not applicable
     collision_pairs (Q, 2) long: link pairs of different fingers checked for finger-finger interpenetration
@@ -497,9 +498,26 @@ def build_hand_model(
             if jn not in jidx:
                 raise UnknownNameError(f"finger {spec.name!r} refers to unknown joint {jn!r}")
             flex[f, k] = jidx[jn]
+    # Links between the palm and a finger's first link (a robot finger's base: Allegro's ff_base, Shadow's thbase
+    # and lfmetacarpal) are that finger's: their joints move it. Not in finger_links, not in finger-finger pairs.
+    bases = set()
+    first = {f: int(finger_links[f, 0]) for f in range(F)}
+    ancestors = {f: set() for f in range(F)}
+    for f, l0 in first.items():
+        a = int(parent[l0])
+        while a >= 0:
+            ancestors[f].add(a)
+            a = int(parent[a])
+    for f in range(F):
+        for a in ancestors[f]:
+            if link_finger[a] < 0 and not any(a in ancestors[g] for g in range(F) if g != f):
+                link_finger[a] = f
+                bases.add(a)
     pairs = []
     for a in range(L):
         for b in range(a + 1, L):
+            if a in bases or b in bases:
+                continue
             fa, fb = link_finger[a], link_finger[b]
             # Finger-finger pairs: links of different fingers, excluding the first (palm-level) link of a 4-link
             # finger, which lies inside the palm next to its neighbours by construction.

@@ -270,3 +270,21 @@ def two_hand_box() -> Scene:
     left = _grasp((0, 1, 0), (-1, 0, 0), (-0.15 - _GAP, -0.04, 0.0))
     return _scene("two-hand-box", _TWO_HAND_BOX, obj, pose,
                   [("right", _wrist_track(pose, right, hold)), ("left", _wrist_track(pose, left, hold))])
+
+
+_CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about the vertical axis by one right hand "
+              "from above; sized for robot hands as large as the Allegro hand (run it with "
+              "`torchhand synthesize cube-turn --hand right=PATH/allegro_hand/right_hand.xml`).")
+
+
+@register_scene("cube-turn", _CUBE_TURN)
+def cube_turn() -> Scene:
+    T = 66
+    mesh, z0 = _resting_box((0.075, 0.075, 0.075))
+    obj = RigidObject.from_trimesh(mesh, mass=0.2, name="cube")
+    hold = (_APPROACH, T - 1 - _APPROACH)
+    theta = math.radians(60.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
+    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
+    # palm on the top face, fingers along +x toward the far edge
+    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.0, 0.0, 0.0375 + _GAP))
+    return _scene("cube-turn", _CUBE_TURN, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
