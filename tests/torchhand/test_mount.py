@@ -120,3 +120,34 @@ def test_synthesize_hand_option_refuses_bad_input(tmp_path, capsys, item, messag
     assert main(["synthesize", "box-turn", "--hand", item, "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1
+
+
+def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(tmp_path):
+    """The Allegro hand on the built-in cube-turn: a solution within a node budget (the same on any machine for a
+    thread count), passing the independent checker; the result's hand.xml replays in MuJoCo by qpos."""
+    mujoco = pytest.importorskip("mujoco")
+    from torchhand.check import check_result
+    from torchhand.result import load_result
+
+    out = tmp_path / "cube"
+    assert main(["synthesize", "cube-turn", "--hand", f"right={robot_file('allegro')}", "--out", str(out),
+                 "--solutions", "1", "--max-nodes", "20000", "--seed", "0", "--threads", "1", "--no-progress"]) == 0
+    res = load_result(out)
+    assert len(res.solution_files) == 1
+    assert check_result(out).passed
+    sol = res.solution(0)
+    hand = res.hand_models["right"]
+    assert hand.num_fingers == 4 and res.solution(0).hands[0].guiding.shape == (sol.T, 4)
+    m = mujoco.MjModel.from_xml_path(str(out / "hand.xml"))
+    d = mujoco.MjData(m)
+    ours = hand.to(dtype=torch.float64).forward_kinematics(torch.as_tensor(sol.q), torch.as_tensor(sol.root_pose))
+    from scipy.spatial.transform import Rotation
+
+    for t in (0, sol.T // 2, sol.T - 1):
+        R, p = sol.root_pose[t, :3, :3], sol.root_pose[t, :3, 3]
+        xyzw = Rotation.from_matrix(R).as_quat()
+        d.qpos[:] = np.concatenate([p, [xyzw[3], *xyzw[:3]], sol.q[t]])
+        mujoco.mj_kinematics(m, d)
+        for l, name in enumerate(hand.link_names):
+            b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+            np.testing.assert_allclose(d.xpos[b], ours[t, l, :3, 3].numpy(), atol=1e-9)
