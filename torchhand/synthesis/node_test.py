@@ -299,6 +299,7 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
                            torch.arange(F, device=q.device), ax_group] + ([ax_group] if table is not None else []))
     jf = hand.link_finger[hand.chain.joint_link]
     joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
+    free = (hi > lo).to(q.dtype)                                         # (N, D)
     lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
     best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
     best_A = best_g = None
@@ -306,6 +307,7 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
                            ax_local.expand(N, A_, 3)], 1)
         _, x, J = hand.kinematics(q, link_all, local, root)
+        J = J * free[:, None, None, :]          # a joint whose box is a point (a locked wrist) couples no finger
         r = (x[:, :P] - target) * weight[..., None]                         # (N, P, 3)
         Jw = J[:, :P] * weight[..., None, None]
         g_vec = x[:, P + F:P + 2 * F] - x[:, P:P + F]                       # nail normals, world (N, F, 3)
