@@ -122,19 +122,24 @@ def test_synthesize_hand_option_refuses_bad_input(tmp_path, capsys, item, messag
     assert message in err and err.count("\n") == 1
 
 
-def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(tmp_path):
-    """The Allegro hand on the built-in cube-turn: a solution within a node budget (the same on any machine for a
-    thread count), passing the independent checker; the result's hand.xml replays in MuJoCo by qpos."""
-    mujoco = pytest.importorskip("mujoco")
-    from torchhand.check import check_result
-    from torchhand.result import load_result
-
-    out = tmp_path / "cube"
+@pytest.fixture(scope="module")
+def allegro_cube(tmp_path_factory):
+    """cube-turn synthesized with the Allegro hand: one solution within 20000 node tests, seed 0, one thread."""
+    out = tmp_path_factory.mktemp("allegro") / "cube"
     assert main(["synthesize", "cube-turn", "--hand", f"right={robot_file('allegro')}", "--out", str(out),
                  "--solutions", "1", "--max-nodes", "20000", "--seed", "0", "--threads", "1", "--no-progress"]) == 0
+    return out
+
+
+def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(allegro_cube):
+    """The Allegro hand on the built-in cube-turn: a solution within a node budget (the same on any machine for a
+    thread count; the checker's verdict is the next test's); the result's hand.xml replays in MuJoCo by qpos."""
+    mujoco = pytest.importorskip("mujoco")
+    from torchhand.result import load_result
+
+    out = allegro_cube
     res = load_result(out)
     assert len(res.solution_files) == 1
-    assert check_result(out).passed
     sol = res.solution(0)
     hand = res.hand_models["right"]
     assert hand.num_fingers == 4 and res.solution(0).hands[0].guiding.shape == (sol.T, 4)
@@ -151,3 +156,28 @@ def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(tmp_path):
         for l, name in enumerate(hand.link_names):
             b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
             np.testing.assert_allclose(d.xpos[b], ours[t, l, :3, 3].numpy(), atol=1e-9)
+
+
+def test_checker_measures_a_robot_hand_on_its_mjcf_geoms(allegro_cube, tmp_path):
+    """A robot hand's penetration is measured on its MJCF geoms posed by MuJoCo: the Allegro hand lowered 1 cm
+    onto the cube at one frame (palm 9 mm above the top face by the scene's grasp) puts its palm-level boxes into the
+    cube, and the checker finds it there."""
+    pytest.importorskip("mujoco")
+    import shutil
+
+    from torchhand.check import check_result
+
+    out = allegro_cube
+    rep = check_result(out)
+    assert rep.passed and any("MJCF geoms posed by MuJoCo" in n for n in rep.notes)
+    bad = tmp_path / "pushed"
+    shutil.copytree(out, bad)
+    f = bad / "solutions" / "sol_000.npz"
+    with np.load(f) as z:
+        data = {k: z[k] for k in z.files}
+    t = data["root_pose"].shape[0] // 2
+    data["root_pose"][t, 2, 3] -= 0.01                            # 1 cm down at one frame: the palm into the cube
+    np.savez(f, **data)
+    fig = check_result(bad).solutions[0].figures["object_penetration_m"]
+    assert fig.value > 0.002 and fig.frame == t
+    assert fig.where.split("/")[1] in {"palm", "ff_base", "mf_base", "rf_base", "th_base"}

@@ -42,7 +42,12 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
     report_limits = resolve_limits(limits, max_joint_speed=speed, fps=scene.fps)
     notes = []
     for side, model in result.hand_models.items():
-        notes += capsule_notes(model, side)
+        odd = capsule_notes(model, side)
+        if odd and _has_mujoco():
+            odd = [odd[0].replace("the checks use capsules fitted to it",
+                                  "object and table penetration are measured on its MJCF geoms posed by MuJoCo; "
+                                  "finger-finger and contact distances use capsules fitted to it")]
+        notes += odd
     if not obj.watertight:
         notes.append("the object's mesh is not watertight: mass properties from its convex hull, inside/outside "
                      "from trimesh's ray test")
@@ -87,7 +92,8 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
                                   f"{', '.join(result.hand_models)}")
         hands[hs.side] = pose_hand(result.hand_models[hs.side], hs.side, hs.q, hs.joint_names, hs.root_pose,
                                    sol.path)
-    fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits)
+    files = {hs.side: _hand_file(result, k, hs.side) for k, hs in enumerate(sol.hands)}
+    fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits, files)
     fig.update(_contact_figures(sol, result.scene, hands, obj, limits))
     q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier)
     fig.update(joint_figs)
@@ -100,14 +106,43 @@ def _columns(arrays: list, labels: list) -> tuple[np.ndarray, list]:
     return np.concatenate(arrays, axis=1), [x for part in labels for x in part]
 
 
-def _penetration_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict) -> dict:
+def _has_mujoco() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("mujoco") is not None
+
+
+def _hand_file(result: Result, k: int, side: str) -> Path | None:
+    """The result's MJCF file of its k-th hand (hand.xml, hand_<side>.xml), None when it has none."""
+    scene_order = [t.side for t in result.scene.hands]
+    first = scene_order[0] if scene_order else side
+    f = Path(result.path) / ("hand.xml" if side == first else f"hand_{side}.xml")
+    return f if f.is_file() else None
+
+
+def _link_depths(sol: Solution, scene, h: PosedHand, obj: ObjectMesh, xml: Path | None):
+    """(object depth, table depth or None) per link, (T, L): on the MJCF geoms posed by MuJoCo for a hand whose
+    geometry is not all capsules (:mod:`.mjcf_geometry`), on the capsules otherwise."""
+    table = scene.environment.table_height if scene.environment.table else None
+    if xml is not None and capsule_notes(h.model, h.side):
+        from .mjcf_geometry import geom_depths
+
+        got = geom_depths(xml, h.model, h.q, sol.hand(h.side).root_pose, obj.mesh, sol.object_pose, table)
+        if got is not None:
+            return got
+    return object_depth(h, obj, sol.object_pose), (table_depth(h, table) if table is not None else None)
+
+
+def _penetration_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict,
+                         files: dict | None = None) -> dict:
     fig = {}
     links = [[h.link(li) for li in range(h.model.num_links)] for h in hl]
-    values, labels = _columns([object_depth(h, obj, sol.object_pose) for h in hl], links)
+    depths = [_link_depths(sol, scene, h, obj, (files or {}).get(h.side)) for h in hl]
+    values, labels = _columns([o for o, _ in depths], links)
     fig["object_penetration_m"] = Figure.worst("object_penetration_m", values, limits["object_penetration_m"],
                                                lambda t, x: labels[x])
     if scene.environment.table:
-        values, _ = _columns([table_depth(h, scene.environment.table_height) for h in hl], links)
+        values, _ = _columns([tb for _, tb in depths], links)
         fig["table_penetration_m"] = Figure.worst("table_penetration_m", values, limits["table_penetration_m"],
                                                   lambda t, x: labels[x])
     if len(hl) == 2:
