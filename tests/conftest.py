@@ -51,3 +51,15 @@ def dtype(request) -> torch.dtype:
 @pytest.fixture
 def gen() -> torch.Generator:
     return torch.Generator().manual_seed(1234)
+
+
+@pytest.fixture(scope="session")
+def bpy():
+    """Blender as a Python module (the optional extra ``torchhand[blender]``), imported once (about 1 s); the test
+    is skipped with the reason when it cannot be imported."""
+    try:
+        import bpy as blender
+    except ImportError as err:
+        pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); "
+                    "install it with: pip install -e '.[blender]'")
+    return blender

@@ -8,7 +8,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_bytes", "atomic_json", "atomic_text"]
+__all__ = ["atomic_bytes", "atomic_json", "atomic_text", "writable_dir"]
 
 
 def atomic_bytes(path: Path, data: bytes) -> None:
@@ -36,3 +36,19 @@ def atomic_text(path: Path, text: str) -> None:
 def atomic_json(path: Path, obj: dict) -> None:
     """Write ``obj`` as indented JSON to ``path`` atomically."""
     atomic_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
+
+
+def writable_dir(out: Path) -> Path:
+    """Create ``out`` (and its parents) and prove a file can be written there, before any work; a one-line
+    InputValueError naming ``--out`` otherwise."""
+    from .errors import InputValueError
+
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise InputValueError(f"--out {out}: cannot write there ({err.strerror or err})") from None
+    return out

@@ -33,16 +33,6 @@ AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 TOL = 1e-4                                   # file units (Blender poses in float32)
 
 
-@pytest.fixture(scope="module")
-def bpy():
-    try:
-        import bpy as blender                # slow (about 1 s): once per module
-    except ImportError as err:
-        pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); "
-                    "install it with: pip install -e '.[blender]'")
-    return blender
-
-
 def import_with_blender(bpy, path):
     """Import ``path`` into an empty Blender scene; returns the armature object."""
     bpy.ops.wm.read_factory_settings(use_empty=True)

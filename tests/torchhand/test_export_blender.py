@@ -26,16 +26,6 @@ from .test_export import fingertips_world
 pytestmark = pytest.mark.blender
 
 
-@pytest.fixture(scope="module")
-def bpy():
-    try:
-        import bpy as blender
-    except ImportError as err:
-        pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); "
-                    "install it with: pip install -e '.[blender]'")
-    return blender
-
-
 def import_bvh(bpy, path, *, scale: float, up: str):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     forward = "-Z" if up == "y" else "Y"

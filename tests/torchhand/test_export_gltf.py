@@ -327,12 +327,6 @@ def test_bad_input(case):
 # Blender as the client
 
 
-@pytest.fixture(scope="module")
-def bpy():
-    return pytest.importorskip("bpy", reason="bpy (Blender as a Python module) cannot be imported; "
-                                             "install it with: pip install -e '.[blender]'")
-
-
 @pytest.mark.blender
 def test_blender_imports_glb(bpy, case, tmp_path):
     result, index, data = case

@@ -48,6 +48,21 @@ def _mj_body_poses(m, d, names) -> np.ndarray:
     return np.stack([_pose(d.xmat[i].reshape(3, 3), d.xpos[i]) for i in ids])
 
 
+def _roots(pos: np.ndarray, quat: np.ndarray) -> torch.Tensor:
+    """Root poses (B, 4, 4) from positions (B, 3) and quaternions wxyz (B, 4)."""
+    return torch.as_tensor(np.stack([_pose(_quat_to_mat(qq), p) for p, qq in zip(pos, quat)]))
+
+
+def _mj_free_fk(m, d, pos: np.ndarray, quat: np.ndarray, q: torch.Tensor, names) -> np.ndarray:
+    """MuJoCo's body poses (B, L, 4, 4) of ``names`` for qpos = (pos, quat wxyz, q) of a free-jointed hand."""
+    out = []
+    for b in range(q.shape[0]):
+        d.qpos[:] = np.concatenate([pos[b], quat[b], q[b].numpy()])
+        mujoco.mj_kinematics(m, d)
+        out.append(_mj_body_poses(m, d, names))
+    return np.stack(out)
+
+
 def _fk_errors(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     """Max position error (metres) and max rotation-matrix entry error over all poses and links."""
     pos = float(np.abs(ours[..., :3, 3] - ref[..., :3, 3]).max())
@@ -74,14 +89,8 @@ def test_exported_default_hand_fk_matches_mujoco(side):
     gen = torch.Generator().manual_seed(7)
     q = hand.random_q(N_POSES, gen)
     pos, quat = _random_roots(N_POSES, gen)
-    root = torch.as_tensor(np.stack([_pose(_quat_to_mat(qq), p) for p, qq in zip(pos, quat)]))
-    ours = hand.forward_kinematics(q, root).numpy()
-    ref = np.empty_like(ours)
-    for b in range(N_POSES):
-        d.qpos[:] = np.concatenate([pos[b], quat[b], q[b].numpy()])
-        mujoco.mj_kinematics(m, d)
-        ref[b] = _mj_body_poses(m, d, hand.link_names)
-    ep, er = _fk_errors(ours, ref)
+    root = _roots(pos, quat)
+    ep, er = _fk_errors(hand.forward_kinematics(q, root).numpy(), _mj_free_fk(m, d, pos, quat, q, hand.link_names))
     assert ep < TOL and er < TOL, (ep, er)
 
 
@@ -224,14 +233,8 @@ def test_exported_shadow_hand_round_trips_through_mujoco(tmp_path):
     gen = torch.Generator().manual_seed(5)
     q = hand.random_q(8, gen)
     pos, quat = _random_roots(8, gen)
-    root = torch.as_tensor(np.stack([_pose(_quat_to_mat(qq), p) for p, qq in zip(pos, quat)]))
-    ours = hand.forward_kinematics(q, root).numpy()
-    ref = np.empty_like(ours)
-    for b in range(8):
-        d.qpos[:] = np.concatenate([pos[b], quat[b], q[b].numpy()])
-        mujoco.mj_kinematics(m, d)
-        ref[b] = _mj_body_poses(m, d, hand.link_names)
-    ep, er = _fk_errors(ours, ref)
+    root = _roots(pos, quat)
+    ep, er = _fk_errors(hand.forward_kinematics(q, root).numpy(), _mj_free_fk(m, d, pos, quat, q, hand.link_names))
     assert ep < TOL and er < TOL
     back = load_mjcf(save_mjcf(hand, tmp_path / "shadow.xml"))
     assert back.joint_names == hand.joint_names and torch.equal(back.geoms.type, hand.geoms.type)
@@ -431,14 +434,8 @@ def test_mounted_hand_round_trips_through_mujoco(tmp_path, name):
     gen = torch.Generator().manual_seed(9)
     q = hand.random_q(6, gen).double()
     pos, quat = _random_roots(6, gen)
-    root = torch.as_tensor(np.stack([_pose(_quat_to_mat(qq), p) for p, qq in zip(pos, quat)]))
-    ours = hand.forward_kinematics(q, root).numpy()
-    ref = np.empty_like(ours)
-    for b in range(6):
-        d.qpos[:] = np.concatenate([pos[b], quat[b], q[b].numpy()])
-        mujoco.mj_kinematics(m, d)
-        ref[b] = _mj_body_poses(m, d, hand.link_names)
-    ep, er = _fk_errors(ours, ref)
+    root = _roots(pos, quat)
+    ep, er = _fk_errors(hand.forward_kinematics(q, root).numpy(), _mj_free_fk(m, d, pos, quat, q, hand.link_names))
     assert ep < TOL and er < TOL
     back = load_mjcf(save_mjcf(hand, tmp_path / f"{name}.xml"))
     torch.testing.assert_close(back.forward_kinematics(q, root), hand.forward_kinematics(q, root), atol=TOL, rtol=0)

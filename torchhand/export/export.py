@@ -17,12 +17,11 @@ are then removed, and the report lists them.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .._atomic import atomic_json
+from .._atomic import atomic_json, writable_dir
 from ..bvh import read_bvh, write_bvh
 from ..errors import InputValueError
 from ..result import load_result, parse_solution_spec
@@ -67,14 +66,7 @@ def prepare_export_dir(out, *, overwrite: bool = False) -> tuple[Path, list[str]
             earlier = [str(f) for f in json.loads((out / _REPORT).read_text()).get("files", [])]
         except (OSError, ValueError, AttributeError):
             earlier = []
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".probe-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as err:
-        raise InputValueError(f"--out {out}: cannot write there ({err.strerror or err})") from None
-    return out, earlier
+    return writable_dir(out), earlier
 
 
 def export_result(result_dir, out, *, solutions: str | None = "all", formats=FORMATS, units: str = "cm",

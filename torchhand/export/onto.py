@@ -147,7 +147,6 @@ def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.2, 
         hands.append((side, joint, model, hand_clip, hrig, hand_local, tips, inserted))
     motion = np.array(clip.motion, dtype=np.float64, copy=True)
     seg = motion[frames].copy()
-    G_wrist = {}
     changed: list[int] = []
     for side, joint, model, hand_clip, hrig, hand_local, tips, inserted in hands:
         say(f"{side} fingers onto {joint}")
@@ -156,7 +155,6 @@ def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.2, 
         seg = rotations_to_channels(clip, seg, carried.rotations)
         w = clip.joint_index(joint)
         Gw = clip.global_transforms(frames).numpy()[:, w]
-        G_wrist[side] = Gw
         targets = np.einsum("nab,nfb->nfa", Gw[:, :3, :3], tips) + Gw[:, None, :3, 3]
         reached = _reach_tips(clip, seg, brig, side, list(model.finger_names), targets)
         seg = rotations_to_channels(clip, seg, reached)
@@ -185,13 +183,18 @@ def _solution_tips(model, X: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.einsum("nfab,fb->nfa", Xd[..., :3, :3], tips_local) + Xd[..., :3, 3]
 
 
+def _rig_finger(name: str) -> str:
+    """The splicing rigs' finger key of a hand model's finger name (the built-in hand's "little" is "pinky")."""
+    return "pinky" if name == "little" else name
+
+
 def _chains(rig, side: str, names: list[str]) -> dict[str, list[int]]:
     """Per finger of the hand, the body's chain joints (by ordinal) and its tip joint last."""
     out = {}
     fingers = rig.fingers.get(side, {})
     tips = rig.tips.get(side, {})
     for name in names:
-        key = "pinky" if name == "little" else name
+        key = _rig_finger(name)
         chain = [j for (f, _), j in sorted(fingers.items(), key=lambda kv: kv[0][1]) if f == key]
         tip = tips.get(key)
         if not chain or tip is None:
@@ -209,8 +212,9 @@ def _reach_tips(clip: BVHClip, seg: np.ndarray, rig, side: str, names: list[str]
     the chain's base fixed), swinging each segment by the smallest rotation; returns joint -> local rotations."""
     G = clip.with_motion(seg).global_transforms().numpy()                          # (N, J, 4, 4)
     out: dict[int, torch.Tensor] = {}
+    chains = _chains(rig, side, names)
     for f, name in enumerate(names):
-        chain = _chains(rig, side, names).get(name)
+        chain = chains.get(name)
         if chain is None:
             continue
         p = G[:, chain][:, :, :3, 3].copy()                                               # (N, n+1, 3)
@@ -322,7 +326,7 @@ def _tip_report(clip: BVHClip, rig, side: str, names: list[str], targets: np.nda
         inner = np.ones_like(inner)
     dist = {}
     for f, name in enumerate(names):
-        j = tips.get("pinky" if name == "little" else name)
+        j = tips.get(_rig_finger(name))
         if j is not None:
             dist[name] = np.linalg.norm(G[:, j, :3, 3] - targets[:, f], axis=-1)[inner] * src.units_scale
     worst = max((float(d.max()) for d in dist.values()), default=None)

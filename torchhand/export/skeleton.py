@@ -29,6 +29,8 @@ Axes and units: ``up="z"`` keeps torchhand's world axes; ``up="y"`` (the usual B
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -57,6 +59,7 @@ def axis_change(up: str) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
+@dataclass(frozen=True, eq=False)
 class HandSkeleton:
     """The BVH skeleton of a hand model (module docstring).
 
@@ -71,11 +74,14 @@ class HandSkeleton:
         tip_joint: joint index of each finger's End Site, (F,) int64
     """
 
-    def __init__(self, names, parents, link_of, is_end_site, end_point, rest_origin, rest_rotation, tip_joint):
-        self.names, self.parents, self.is_end_site = tuple(names), tuple(parents), tuple(is_end_site)
-        self.link_of, self.end_point = np.asarray(link_of), np.asarray(end_point)
-        self.rest_origin, self.rest_rotation = np.asarray(rest_origin), np.asarray(rest_rotation)
-        self.tip_joint = np.asarray(tip_joint, dtype=np.int64)
+    names: tuple
+    parents: tuple
+    link_of: np.ndarray
+    is_end_site: tuple
+    end_point: np.ndarray
+    rest_origin: np.ndarray
+    rest_rotation: np.ndarray
+    tip_joint: np.ndarray
 
     @property
     def num_links(self) -> int:
@@ -111,8 +117,8 @@ def hand_skeleton(model) -> HandSkeleton:
         link_of.append(l)
         is_end.append(True)
         end_point.append(_leaf_end(m, l))
-    return HandSkeleton(names, parents, np.array(link_of), is_end, np.stack(end_point), rest[:, :3, 3].copy(),
-                        rest[:, :3, :3].copy(), tip_joint)
+    return HandSkeleton(tuple(names), tuple(parents), np.array(link_of), tuple(is_end), np.stack(end_point),
+                        rest[:, :3, 3].copy(), rest[:, :3, :3].copy(), np.array(tip_joint, dtype=np.int64))
 
 
 def _leaf_end(m, l: int) -> np.ndarray:

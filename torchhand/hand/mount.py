@@ -55,7 +55,7 @@ def thumb_index(model) -> int | None:
     """Index of the thumb among ``model.finger_names`` (name containing "th"/"thumb"), or None."""
     for f, name in enumerate(model.finger_names):
         n = name.lower()
-        if n == "th" or "thumb" in n or n.startswith("th"):
+        if "thumb" in n or n.startswith("th"):
             return f
     return None
 

@@ -129,17 +129,22 @@ _BOX_TURN = ("A 9 x 7 x 6 cm box (0.25 kg) on the table is turned 75 degrees abo
              "hand grasping it from above; the box slides on the table.")
 
 
+def _turn_from_above(name: str, description: str, extents, mass: float, obj_name: str, degrees: float) -> Scene:
+    """A box resting on the table turned about the vertical by one right hand from above (66 frames): the palm on
+    the top face, fingers along +x over the far edge, thumb (+y) toward the +y side face."""
+    T = 66
+    mesh, z0 = _resting_box(extents)
+    obj = RigidObject.from_trimesh(mesh, mass=mass, name=obj_name)
+    hold = (_APPROACH, T - 1 - _APPROACH)
+    theta = math.radians(degrees) * _ramp(T, hold[0] + 4, hold[1] - 4)
+    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
+    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.0, 0.0, 0.5 * extents[2] + _GAP))
+    return _scene(name, description, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
+
+
 @register_scene("box-turn", _BOX_TURN)
 def box_turn() -> Scene:
-    T = 66
-    mesh, z0 = _resting_box((0.09, 0.07, 0.06))
-    obj = RigidObject.from_trimesh(mesh, mass=0.25, name="box")
-    hold = (_APPROACH, T - 1 - _APPROACH)
-    theta = math.radians(75.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
-    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
-    # palm on the top face, fingers along +x over the far edge, thumb (+y) on the +y side face
-    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.0, 0.0, 0.03 + _GAP))
-    return _scene("box-turn", _BOX_TURN, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
+    return _turn_from_above("box-turn", _BOX_TURN, (0.09, 0.07, 0.06), 0.25, "box", 75.0)
 
 
 _BOX_PICKUP = ("A 7 x 7 x 14 cm milk-box-like carton (0.3 kg) standing on the table is grasped from above by one "
@@ -279,12 +284,4 @@ _CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about th
 
 @register_scene("cube-turn", _CUBE_TURN)
 def cube_turn() -> Scene:
-    T = 66
-    mesh, z0 = _resting_box((0.075, 0.075, 0.075))
-    obj = RigidObject.from_trimesh(mesh, mass=0.2, name="cube")
-    hold = (_APPROACH, T - 1 - _APPROACH)
-    theta = math.radians(60.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
-    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
-    # palm on the top face, fingers along +x toward the far edge
-    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.0, 0.0, 0.0375 + _GAP))
-    return _scene("cube-turn", _CUBE_TURN, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
+    return _turn_from_above("cube-turn", _CUBE_TURN, (0.075, 0.075, 0.075), 0.2, "cube", 60.0)

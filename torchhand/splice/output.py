@@ -20,12 +20,11 @@ something other than an earlier splice result is never written into; an earlier 
 from __future__ import annotations
 
 import io
-import os
 from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_bytes, atomic_json
+from .._atomic import atomic_bytes, atomic_json, writable_dir
 from ..bvh import write_bvh
 from ..errors import InputValueError
 from .splice import SpliceResult
@@ -47,14 +46,7 @@ def prepare_out(out, *, overwrite: bool = False) -> Path:
         if not overwrite:
             raise InputValueError(f"--out {out}: holds an earlier splice result; pass --overwrite to replace it or "
                                   "choose another directory")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".probe-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as err:
-        raise InputValueError(f"--out {out}: cannot write there ({err.strerror or err})") from None
-    return out
+    return writable_dir(out)
 
 
 def warp_arrays(result: SpliceResult) -> dict:
