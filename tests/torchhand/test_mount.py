@@ -145,6 +145,9 @@ def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(allegro_cube):
     assert hand.num_fingers == 4 and res.solution(0).hands[0].guiding.shape == (sol.T, 4)
     m = mujoco.MjModel.from_xml_path(str(out / "hand.xml"))
     d = mujoco.MjData(m)
+    # the user's own file (its model name, its actuators) with the free joint first
+    assert (out / "hand_assets").is_dir() and m.nu == mujoco.MjModel.from_xml_path(str(robot_file("allegro"))).nu
+    assert m.nq == 7 + hand.num_joints and m.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
     ours = hand.to(dtype=torch.float64).forward_kinematics(torch.as_tensor(sol.q), torch.as_tensor(sol.root_pose))
     from scipy.spatial.transform import Rotation
 
@@ -181,3 +184,89 @@ def test_checker_measures_a_robot_hand_on_its_mjcf_geoms(allegro_cube, tmp_path)
     fig = check_result(bad).solutions[0].figures["object_penetration_m"]
     assert fig.value > 0.002 and fig.frame == t
     assert fig.where.split("/")[1] in {"palm", "ff_base", "mf_base", "rf_base", "th_base"}
+
+
+def test_relaxed_rest_pose_of_a_robot_hand(tmp_path):
+    """A sidecar's [rest] pose = "relaxed" puts each fingertip where the built-in hand rests (scaled by the hands'
+    lengths), within the joint limits, the same every time; [rest] names joints; the default is the file's q = 0."""
+    from torchhand.hand.mjcf import save_mjcf
+    from torchhand.hand.mount import _tips_nails, relaxed_rest, with_rest
+
+    track = dataclasses.replace(torchhand.load_scene("box-turn").hands[0], model=str(robot_file("shadow")))
+    home = track_hand(track)
+    zero = lambda h: h.clamp_to_limits(torch.zeros(1, h.num_joints, dtype=torch.float64))
+    assert torch.equal(home.q_rest, zero(home)[0])
+    hand = with_rest(home, {"pose": "relaxed"})
+    lim = hand.joint_limits
+    assert bool(((hand.q_rest >= lim[:, 0] - 1e-12) & (hand.q_rest <= lim[:, 1] + 1e-12)).all())
+    assert torch.equal(relaxed_rest(home), hand.q_rest)                      # deterministic
+    ref = default_hand("right")
+    tips, _ = _tips_nails(hand, hand.q_rest[None])
+    rtips, _ = _tips_nails(ref, ref.q_rest[None])
+    s = float(_tips_nails(hand, zero(hand))[0][0, :4].norm(dim=-1).max()
+              / _tips_nails(ref, zero(ref))[0][0, 1:].norm(dim=-1).max())
+    th = thumb_index(hand)
+    # the thumb rests opposed, below the palm, where the built-in thumb rests (it lies in the palm's plane at q = 0)
+    assert float((tips[0, th] - s * rtips[0, 0]).norm()) < 0.005
+    assert float(tips[0, th, 2]) < -0.03 and float(_tips_nails(hand, zero(hand))[0][0, th, 2]) > -0.01
+    assert bool((tips[0, :4, 2] < -0.02).all())                              # curled long fingers
+    j = list(hand.joint_names).index("rh_THJ4")
+    assert float(with_rest(home, {"rh_THJ4": 0.1}).q_rest[j]) == pytest.approx(0.1)
+    with pytest.raises(torchhand.errors.InputValueError, match="rh_NOPE"):
+        with_rest(home, {"rh_NOPE": 0.1})
+    # through a sidecar; bad values are refused
+    xml = tmp_path / "shadow.xml"
+    save_mjcf(HandModel.from_mjcf(robot_file("shadow")), xml)
+    mine = dataclasses.replace(track, model=str(xml))
+    (tmp_path / "shadow.torchhand.toml").write_text('[rest]\npose = "relaxed"\nrh_THJ4 = 0.2\n')
+    got = track_hand(mine)
+    assert float(got.q_rest[j]) == pytest.approx(0.2)
+    np.testing.assert_allclose(np.delete(got.q_rest.numpy(), j), np.delete(hand.q_rest.numpy(), j), atol=1e-9)
+    for bad, key in (('[rest]\nrh_THJ4 = "bent"\n', "rh_THJ4"), ('[rest]\npose = "curled"\n', "pose")):
+        (tmp_path / "shadow.torchhand.toml").write_text(bad)
+        with pytest.raises(FileFormatError, match=key):
+            track_hand(mine)
+    # a file written from the mounted hand (a result's hand.xml) stores its rest pose
+    save_mjcf(hand, tmp_path / "mounted.xml")
+    again = HandModel.from_mjcf(tmp_path / "mounted.xml")
+    np.testing.assert_allclose(again.q_rest.numpy(), hand.q_rest.numpy(), atol=1e-9)
+
+
+@pytest.mark.parametrize("robot", ["shadow", "allegro"])
+def test_result_hand_file_is_the_users_model_with_a_free_joint(robot, tmp_path):
+    """hand.xml of an MJCF hand is the user's file (tendons, actuators, mesh files kept) hung from a free joint at the
+    mount: MuJoCo poses every body where torchhand's mounted model does, for random poses and wrists, and
+    torchhand reads the file back as the same model."""
+    mujoco = pytest.importorskip("mujoco")
+    from scipy.spatial.transform import Rotation
+
+    from torchhand.hand.mjcf import load_mjcf
+    from torchhand.synthesis.output import write_hand_file
+
+    src = robot_file(robot)
+    track = dataclasses.replace(torchhand.load_scene("box-turn").hands[0], model=str(src))
+    hand = track_hand(track)
+    write_hand_file(tmp_path / "hand.xml", hand.to(dtype=torch.float32), track)
+    user = mujoco.MjModel.from_xml_path(str(src))
+    m = mujoco.MjModel.from_xml_path(str(tmp_path / "hand.xml"))
+    assert (m.nu, m.ntendon, m.nmesh) == (user.nu, user.ntendon, user.nmesh) and m.nq == user.nq + 7
+    back = load_mjcf(tmp_path / "hand.xml")
+    assert back.link_names == hand.link_names and back.finger_names == hand.finger_names
+    np.testing.assert_allclose(back.q_rest.numpy(), hand.q_rest.numpy(), atol=1e-12)
+    d = mujoco.MjData(m)
+    g = torch.Generator().manual_seed(3)
+    adr = [m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in hand.joint_names]
+    for _ in range(4):
+        q = hand.random_q(1, g)[0]
+        R = Rotation.random(random_state=int(torch.randint(1000, (1,), generator=g)))
+        W = np.eye(4)
+        W[:3, :3], W[:3, 3] = R.as_matrix(), torch.rand(3, generator=g, dtype=torch.float64).numpy()
+        ours = hand.forward_kinematics(q[None], torch.as_tensor(W)[None])[0].numpy()
+        xyzw = R.as_quat()
+        d.qpos[:7] = np.concatenate([W[:3, 3], [xyzw[3], *xyzw[:3]]])
+        d.qpos[adr] = q.numpy()
+        mujoco.mj_kinematics(m, d)
+        for l, name in enumerate(hand.link_names):
+            b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+            np.testing.assert_allclose(d.xpos[b], ours[l, :3, 3], atol=1e-9)
+            np.testing.assert_allclose(d.xmat[b].reshape(3, 3), ours[l, :3, :3], atol=1e-9)

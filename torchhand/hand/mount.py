@@ -22,12 +22,25 @@ hand.
 Joints between the root and the link the fingers branch from (the Shadow hand's wrist ``WRJ1``, ``WRJ2``) are
 locked at ``q_rest`` (:func:`lock_palm_joints`): the wrist track gives the palm's pose.
 
+Rest pose: the MJCF's own ``q = 0`` (clamped to the limits), usually the robot's home pose with open fingers.
+The search starts its inverse kinematics there and lets free fingers return to it. :func:`relaxed_rest` derives a
+human-like alternative, chosen with ``[rest] pose = "relaxed"`` in the sidecar: each fingertip at the built-in
+hand's rest fingertip of the matching finger (thumb to thumb, long fingers in order across the knuckles), scaled
+by the ratio of the hands' lengths, with the nail facing the same way; joints fitted within their limits. On
+``box-turn`` it lets the Shadow thumb, which lies in the palm's plane at ``q = 0`` and reaches no side of the box
+from there (IK ends at its joint limits 6-20 mm short), start opposed; on ``cube-turn`` the Allegro hand's curled
+fingers then start inside the cube and most found paths cannot be smoothed, so it is not the default.
+
 Sidecar (``<model>.torchhand.toml`` beside the MJCF file, all keys optional)::
 
     [mount]
     origin = [0.0, 0.0, 0.034]            # hand-frame origin in the root link's parent frame, metres
     x_axis = [0.0, 0.0, 1.0]              # + x (along the fingers), root coordinates
     y_axis = [1.0, 0.0, 0.0]              # + y (made orthogonal to x), root coordinates
+
+    [rest]
+    pose = "relaxed"                      # "zero" (default: q = 0 clamped) or "relaxed" (relaxed_rest)
+    rh_THJ4 = 1.0                         # rest angle of a named joint, radians (after the pose)
 
 Conventions: metres, column-vector 4x4 transforms (:mod:`torchhand.conventions`).
 """
@@ -48,7 +61,8 @@ PALM_DEPTH = 0.015
 """Depth of the palm's volar surface below the hand frame's origin, metres (the built-in hand's, about 1.5 cm; the
 built-in scenes place the palm surface a few millimetres off the object with it)."""
 
-__all__ = ["PALM_DEPTH", "hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index", "track_hand"]
+__all__ = ["PALM_DEPTH", "hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index",
+           "track_hand", "relaxed_rest", "with_rest"]
 
 
 def thumb_index(model) -> int | None:
@@ -129,10 +143,18 @@ def load_sidecar(mjcf_path) -> dict:
         doc = tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as err:
         raise FileFormatError(f"{p}: cannot read: {err}") from None
-    allowed = {"mount": {"origin", "x_axis", "y_axis"}}
+    allowed = {"mount": {"origin", "x_axis", "y_axis"}, "rest": None}
     for key, table in doc.items():
-        if key not in allowed or not isinstance(table, dict) or set(table) - allowed[key]:
-            raise FileFormatError(f"{p}: unknown table or key {key!r}; allowed: [mount] origin, x_axis, y_axis")
+        if key not in allowed or not isinstance(table, dict) or (allowed[key] and set(table) - allowed[key]):
+            raise FileFormatError(f"{p}: unknown table or key {key!r}; allowed: [mount] origin, x_axis, y_axis; "
+                                  '[rest] pose = "zero"|"relaxed", JOINT = radians')
+    for name, value in doc.get("rest", {}).items():
+        if name == "pose":
+            if value not in ("zero", "relaxed"):
+                raise FileFormatError(f'{p}: [rest] pose: expected "zero" or "relaxed", got {value!r}')
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise FileFormatError(f"{p}: [rest] {name}: expected a number of radians, got {value!r}")
     return doc
 
 
@@ -191,7 +213,91 @@ def _mounted_mjcf(path: str, side: str, stamp) -> "object":
     doc = load_sidecar(path)
     mount = doc.get("mount", {})
     default = np.eye(4) if {"origin", "x_axis", "y_axis"} <= set(mount) else hand_frame(model)
-    return lock_palm_joints(mounted(model, sidecar_frame(doc, default)))
+    hand = lock_palm_joints(mounted(model, sidecar_frame(doc, default)))
+    return with_rest(hand, doc.get("rest", {}), path)
+
+
+def with_rest(model, rest: dict, where: str = "sidecar"):
+    """``model`` with the rest pose a sidecar's ``[rest]`` table ``rest`` gives: ``pose`` "zero" (``model.q_rest``,
+    the default) or "relaxed" (:func:`relaxed_rest`), then the angles of the joints it names ({joint name: radians})
+    replacing those joints' (clamped to their limits). Raises InputValueError for an unknown joint name."""
+    named = {k: v for k, v in rest.items() if k != "pose"}
+    if not named and rest.get("pose", "zero") == "zero":
+        return model
+    q = relaxed_rest(model) if rest.get("pose") == "relaxed" else model.q_rest.clone()
+    names = list(model.joint_names)
+    for name, value in named.items():
+        if name not in names:
+            raise InputValueError(f"{where}: [rest] names joint {name!r}, which the hand does not have")
+        q[names.index(name)] = float(value)
+    lim = model.joint_limits
+    return dataclasses.replace(model, q_rest=torch.minimum(torch.maximum(q.to(lim.dtype), lim[:, 0]), lim[:, 1]))
+
+
+def relaxed_rest(model, *, starts: int = 64, iters: int = 200) -> torch.Tensor:
+    """A relaxed rest pose of a mounted hand, (D,) radians (module docstring, "Rest pose").
+
+    Per finger f: minimise ``|tip_f(q) - s tip*_g|^2 / (1 cm)^2 + (1 - nail_f(q) . nail*_g)`` over its joints within
+    the limits, where g is the built-in hand's matching finger, ``tip*``/``nail*`` its rest fingertip and nail
+    direction in the hand frame and ``s`` the ratio of the hands' lengths (farthest long fingertip at ``q = 0``).
+    Adam on a sigmoid parametrisation of each joint's range from ``starts`` starts (a fixed generator: the same
+    model always gives the same pose), best start per finger. Joints of no finger keep ``model.q_rest``.
+    """
+    from .default import default_hand
+
+    m = model.to(device="cpu", dtype=torch.float64)
+    ref = default_hand(m.side if m.side in ("left", "right") else "right")
+    zero = lambda h: h.clamp_to_limits(torch.zeros(1, h.num_joints, dtype=torch.float64))
+    tips0, _ = _tips_nails(m, zero(m))
+    rtips0, _ = _tips_nails(ref, zero(ref))
+    rtips, rnails = _tips_nails(ref, ref.q_rest[None])
+    th, rth = thumb_index(m), thumb_index(ref)
+    longs = sorted((f for f in range(m.num_fingers) if f != th), key=lambda f: -float(tips0[0, f, 1]))
+    rlongs = sorted((f for f in range(ref.num_fingers) if f != rth), key=lambda f: -float(rtips0[0, f, 1]))
+    if m.side == "left":                                    # +y points away from the thumb on a left hand
+        longs, rlongs = longs[::-1], rlongs[::-1]
+    match = {f: rlongs[round(i * (len(rlongs) - 1) / max(len(longs) - 1, 1))] for i, f in enumerate(longs)}
+    if th is not None:
+        match[th] = rth
+    reach = lambda t, fs: float(t[0, fs].norm(dim=-1).max())
+    s = reach(tips0, longs) / reach(rtips0, rlongs) if longs else 1.0
+    order = sorted(match)
+    tgt = torch.stack([rtips[0, match[f]] * s for f in order])              # (F, 3)
+    ntg = torch.stack([rnails[0, match[f]] for f in order])
+    lo, hi = m.joint_limits[:, 0], m.joint_limits[:, 1]
+    span = (hi - lo).clamp_min(1e-9)
+    gen = torch.Generator().manual_seed(0)
+    u0 = ((zero(m)[0] - lo) / span).clamp(1e-3, 1 - 1e-3)
+    z = (torch.logit(u0)[None] + 4.0 * (torch.rand(starts, m.num_joints, generator=gen, dtype=torch.float64) - 0.5))
+    z.requires_grad_(True)
+    opt = torch.optim.Adam([z], lr=0.05)
+    idx = torch.tensor(order)
+    for _ in range(iters):
+        tp, nl = _tips_nails(m, lo + span * torch.sigmoid(z))
+        loss = ((tp[:, idx] - tgt) ** 2).sum(-1) / 1e-4 + (1 - (nl[:, idx] * ntg).sum(-1))
+        opt.zero_grad()
+        loss.sum().backward()
+        opt.step()
+    with torch.no_grad():
+        q = lo + span * torch.sigmoid(z)
+        tp, nl = _tips_nails(m, q)
+        cost = ((tp[:, idx] - tgt) ** 2).sum(-1) / 1e-4 + (1 - (nl[:, idx] * ntg).sum(-1))   # (starts, F)
+        best = cost.argmin(0)
+        out = m.q_rest.clone()
+        jf = m.link_finger[m.chain.joint_link]
+        free = hi > lo
+        for i, f in enumerate(order):
+            js = (jf == f) & free
+            out[js] = q[best[i], js]
+    return out.to(model.joint_limits.dtype)
+
+
+def _tips_nails(m, q: torch.Tensor):
+    """Fingertip pads' centres and nail directions in the hand frame, (B, F, 3) each, for poses q (B, D)."""
+    T = m.forward_kinematics(q)
+    dl = m.distal_link
+    R = T[:, dl, :3, :3]
+    return (R @ m.fingertip[None, :, :, None]).squeeze(-1) + T[:, dl, :3, 3], (R @ m.nail_normal[None, :, :, None]).squeeze(-1)
 
 
 def lock_palm_joints(model):

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from .._atomic import atomic_bytes, atomic_json
-from ..errors import InputValueError
+from ..errors import InputValueError, TorchhandError
 from ..hand.mjcf import hand_to_mjcf
 from ..result import FORMAT_VERSION
 from .node_test import contact_slots
@@ -201,7 +201,7 @@ class ResultWriter:
         scene.export(self.stage / "scene", overwrite=True)
         for h, hand in enumerate(problem.hands):
             name = "hand.xml" if h == 0 else f"hand_{problem.sides[h]}.xml"
-            _atomic_bytes(self.stage / name, hand_to_mjcf(hand.to("cpu", torch.float64)).encode())
+            write_hand_file(self.stage / name, hand, scene.hands[h])
         (self.stage / "solutions").mkdir(exist_ok=True)
         for old in (self.stage / "solutions").glob("sol_*.npz"):
             old.unlink()                           # only in a directory this run claimed: new, empty or .partial
@@ -250,6 +250,27 @@ class ResultWriter:
             os.replace(self.stage, self.out)
             shutil.rmtree(old, ignore_errors=True)
         return self.out
+
+
+def write_hand_file(path: Path, hand, track) -> None:
+    """A result's hand file for the scene's hand track ``track`` and the synthesis' model ``hand``: for an MJCF hand the
+    user's own file with a free joint (:mod:`torchhand.hand._mjcf_wrap`, from the float64 mounted model) when it reads
+    back as the same model, otherwise (the built-in hand, a file with ``<include>``) torchhand's MJCF of ``hand``."""
+    from ..hand._mjcf_wrap import _same_model, wrap_user_mjcf
+    from ..hand.mjcf import load_mjcf
+    from ..hand.mount import track_hand
+
+    hand = hand.to("cpu", torch.float64)
+    if track.model != "default":
+        mounted = track_hand(track)
+        if wrap_user_mjcf(track.model, mounted, path) is not None:
+            try:
+                if _same_model(load_mjcf(path), mounted):
+                    return
+            except TorchhandError:
+                pass
+        shutil.rmtree(path.with_name(path.stem + "_assets"), ignore_errors=True)
+    _atomic_bytes(path, hand_to_mjcf(hand).encode())
 
 
 def write_result(result: SynthesisResult, out, *, overwrite: bool = False, threads: int | None = None) -> Path:
