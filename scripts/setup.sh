@@ -35,5 +35,12 @@ if [ "${SETUP_BLENDER:-1}" != 0 ]; then
   "$PY" -c "import bpy" >/dev/null 2>&1 \
     || echo "setup: optional bpy (Blender 4.5, Python 3.11 only) not installed; the Blender tests will be skipped"
 fi
+# Optional: Ray (the extra [ray], about 80 MB), for `torchhand batch --ray` and the tests that run a batch on a local
+# Ray instance. Not fatal: without it those tests are skipped. SETUP_RAY=0 skips this step.
+if [ "${SETUP_RAY:-1}" != 0 ]; then
+  "$PY" -m pip install -q -e ".[ray]" >/dev/null 2>&1 || true
+  "$PY" -c "import ray" >/dev/null 2>&1 \
+    || echo "setup: optional ray not installed; the Ray batch tests will be skipped"
+fi
 command -v pyenv >/dev/null 2>&1 && pyenv rehash || true
 "$PY" -c "import torchhand, torchhand.kernels; print('setup: torchhand', torchhand.__version__, 'ready')"

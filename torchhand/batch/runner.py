@@ -1,0 +1,243 @@
+"""Running a batch: the plan (workers × threads), the local process pool, and :func:`run_batch`, which ties the
+manifest, the batch directory (:mod:`.store`), a backend (local or Ray) and the summary together.
+
+Threads: every job runs with an explicit torch thread count, ``threads``, recorded in ``batch.json``, in each
+job's ``job.json`` and in its ``stats.json``. A seed with a node budget gives the same result for the same thread
+count (docs/synthesis.md), so the count is chosen once per run: ``--threads``, else ``CPUs // workers`` (at least
+1), where CPUs are the ones this process may use (``os.sched_getaffinity``) and workers default to one per CPU.
+So ``workers × threads ≤ CPUs`` unless both are given explicitly.
+
+Local pool: one worker subprocess (:mod:`.worker`) per running job, at most ``workers`` at a time, polled by this
+single-threaded loop. A worker that crashes or is killed is a failed attempt, recorded; the batch goes on.
+"""
+
+from __future__ import annotations
+
+import collections
+import fcntl
+import os
+import subprocess
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from ..errors import InputValueError
+from . import worker
+from .manifest import Job, Manifest
+from .store import Journal, Layout, finish_attempt, open_batch, recover
+
+__all__ = ["RunPlan", "Counts", "BatchOutcome", "usable_cpus", "plan_run", "run_batch"]
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask), else ``os.cpu_count()``."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """How a batch runs (not part of any job's id).
+
+    workers: jobs at a time; threads: torch threads per job; cpus: CPUs usable here
+    device: "cpu" or "cuda"; backend: "local" or "ray" (ray_address: "local" for ``--ray auto``, else the address)
+    gpus: CUDA devices given to local workers round-robin (``CUDA_VISIBLE_DEVICES``), empty for the CPU
+    """
+
+    workers: int
+    threads: int
+    cpus: int
+    device: str = "cpu"
+    backend: str = "local"
+    ray_address: str | None = None
+    gpus: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def plan_run(*, workers: int | None = None, threads: int | None = None, device: str = "cpu",
+             ray: str | None = None, cpus: int | None = None, gpus: tuple[str, ...] = ()) -> RunPlan:
+    """The run's plan (module docstring). ``ray``: None (local pool), ``"auto"`` (a local Ray instance) or a
+    cluster address, where ``workers`` caps the jobs in flight (default: what the cluster's CPUs hold)."""
+    for name, value in (("--workers", workers), ("--threads", threads)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise InputValueError(f"{name}: expected an integer >= 1, got {value}")
+    if device not in ("cpu", "cuda"):
+        raise InputValueError(f"--device: expected cpu or cuda, got {device!r}")
+    cpus = cpus or usable_cpus()
+    if ray is not None and ray != "auto":
+        return RunPlan(workers=workers or 0, threads=threads or 1, cpus=cpus, device=device, backend="ray",
+                       ray_address=ray)
+    if workers is None:
+        workers = len(gpus) if device == "cuda" and gpus else max(1, cpus // (threads or 1))
+    threads = threads or max(1, cpus // workers)
+    return RunPlan(workers=workers, threads=threads, cpus=cpus, device=device,
+                   backend="ray" if ray else "local", ray_address="local" if ray else None,
+                   gpus=gpus if device == "cuda" else ())
+
+
+@dataclass(frozen=True)
+class Counts:
+    """Progress of a run, after an event.
+
+    total: jobs in the batch; done: finished (earlier runs included); running: attempts running; failed: attempts
+    failed in this run; ran: attempts ended in this run; elapsed_s: seconds since the run started; eta_s:
+    estimated seconds left (from the rate of attempts ending in this run; None before the first)
+    """
+
+    total: int
+    done: int = 0
+    running: int = 0
+    failed: int = 0
+    ran: int = 0
+    elapsed_s: float = 0.0
+    eta_s: float | None = None
+
+
+@dataclass(frozen=True)
+class BatchOutcome:
+    """What a run did. finished: jobs finished in this run; already: finished before it; failed: ids whose last
+    attempt of this run failed; pending: jobs not run (interrupted); summary: files written."""
+
+    total: int
+    already: int
+    finished: tuple[str, ...]
+    failed: tuple[str, ...]
+    pending: tuple[str, ...]
+    plan: RunPlan
+    summary: tuple[Path, ...]
+    interrupted: bool = False
+
+
+class _Tracker:
+    """Counts, ETA and the event callback ``notify(kind, job_id, record, counts)``."""
+
+    def __init__(self, total: int, done: int, notify):
+        self.counts = Counts(total=total, done=done)
+        self.t0 = time.monotonic()
+        self.notify = notify or (lambda *a: None)
+        self.finished: list[str] = []
+        self.failed: list[str] = []
+
+    def event(self, kind: str, job_id: str, record: dict | None = None) -> None:
+        c = self.counts
+        done, running, failed, ran = c.done, c.running, c.failed, c.ran
+        if kind == "start":
+            running += 1
+        elif kind in ("finish", "fail", "discard"):
+            running, ran = running - 1, ran + 1
+            if kind in ("finish", "discard"):          # discard: the job had been finished meanwhile
+                done += 1
+                self.finished.append(job_id)
+            else:
+                failed += 1
+                self.failed.append(job_id)
+        elapsed = time.monotonic() - self.t0
+        left = c.total - done - failed
+        eta = 0.0 if not left else elapsed / ran * left if ran else None
+        self.counts = replace(c, done=done, running=running, failed=failed, ran=ran, elapsed_s=elapsed, eta_s=eta)
+        self.notify(kind, job_id, record or {}, self.counts)
+
+
+def run_local(layout: Layout, journal: Journal, todo: list[tuple[Job, int]], plan: RunPlan,
+              tracker: _Tracker) -> None:
+    """Run ``todo`` ((job, attempt) pairs) on a pool of ``plan.workers`` worker subprocesses."""
+    queue = collections.deque(todo)
+    running: dict[int, tuple[Job, int, subprocess.Popen, float]] = {}          # slot -> attempt
+    try:
+        while queue or running:
+            for slot in range(plan.workers):
+                if queue and slot not in running:
+                    job, n = queue.popleft()
+                    running[slot] = _launch(layout, journal, job, n, plan, slot, tracker)
+            time.sleep(0.1)
+            for slot, (job, n, proc, t0) in list(running.items()):
+                rc = proc.poll()
+                if rc is None:
+                    continue
+                del running[slot]
+                log = layout.log(job.id, n)
+                record = finish_attempt(layout, journal, job, n, returncode=rc,
+                                        error="" if rc == 0 else worker.describe_exit(rc, log),
+                                        meta=_meta(plan, t0, proc.pid, rc))
+                tracker.event(record["event"], job.id, record)
+    except BaseException:                  # Ctrl-C or a bug: stop the workers, record their attempts as failed
+        for job, n, proc, t0 in running.values():
+            proc.terminate()
+        for job, n, proc, t0 in running.values():
+            try:
+                rc = proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                rc = proc.wait()
+            record = finish_attempt(layout, journal, job, n, returncode=rc, error="interrupted: the batch process "
+                                    "stopped its workers", meta=_meta(plan, t0, proc.pid, rc))
+            tracker.event(record["event"], job.id, record)
+        raise
+
+
+def _meta(plan: RunPlan, t0: float, pid: int | None, rc: int | None) -> dict:
+    import socket
+
+    return {"threads": plan.threads, "device": plan.device, "backend": plan.backend, "host": socket.gethostname(),
+            "pid": pid, "returncode": rc, "seconds": round(time.monotonic() - t0, 3)}
+
+
+def _launch(layout: Layout, journal: Journal, job: Job, n: int, plan: RunPlan, slot: int, tracker: _Tracker):
+    stage, log = layout.stage(job.id, n), layout.log(job.id, n)
+    env = worker.environment(plan.threads)
+    if plan.gpus:
+        env["CUDA_VISIBLE_DEVICES"] = plan.gpus[slot % len(plan.gpus)]
+    with open(log, "ab") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)       # a fresh file; the worker inherits the lock
+        t0 = time.monotonic()
+        proc = subprocess.Popen(worker.command(job.argv(), stage, plan.threads, plan.device), stdout=fh,
+                                stderr=subprocess.STDOUT, cwd=layout.logs, env=env, **worker.popen_kwargs())
+    record = journal.append("start", job=job.id, attempt=n, pid=proc.pid, threads=plan.threads, device=plan.device,
+                            backend="local", log=str(log.relative_to(layout.root)))
+    tracker.event("start", job.id, record)
+    return job, n, proc, t0
+
+
+def run_batch(manifest: Manifest, out, plan: RunPlan, *, update: bool = False, notify=None,
+              note=lambda line: None) -> BatchOutcome:
+    """Run every unfinished job of ``manifest`` into the batch directory ``out`` with ``plan``, then write the
+    summary (:func:`torchhand.batch.summary.write_summary`), also when interrupted.
+
+    notify: ``notify(kind, job_id, record, counts)`` on every start / finish / fail (:class:`Counts`)
+    note: ``note(line)`` for remarks (removed staging directories, recovered attempts)
+    Raises InputValueError for a bad ``out`` (before any work) or a busy batch directory.
+    """
+    from .summary import write_summary
+
+    layout, journal, lock = open_batch(Path(out), manifest, plan.to_dict(), update=update)
+    try:
+        finished, attempt = recover(layout, journal, manifest.jobs, note=note)
+        todo = [(j, attempt[j.id]) for j in manifest.jobs if j.id not in finished]
+        tracker = _Tracker(len(manifest.jobs), len(finished), notify)
+        journal.append("batch", action="begin", pid=os.getpid(), jobs=len(manifest.jobs), finished=len(finished),
+                       to_run=len(todo), **plan.to_dict())
+        tracker.event("begin", "")
+        interrupted = False
+        try:
+            if todo and plan.backend == "ray":
+                from .ray_backend import run_ray
+
+                run_ray(layout, journal, todo, plan, tracker)
+            elif todo:
+                run_local(layout, journal, todo, plan, tracker)
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            paths = write_summary(layout.root)
+            journal.append("batch", action="end", pid=os.getpid(), finished=len(tracker.finished),
+                           failed=len(tracker.failed), interrupted=interrupted)
+        done = set(tracker.finished) | set(tracker.failed)
+        return BatchOutcome(total=len(manifest.jobs), already=len(finished), finished=tuple(tracker.finished),
+                            failed=tuple(tracker.failed), pending=tuple(j.id for j, _ in todo if j.id not in done),
+                            plan=plan, summary=tuple(paths), interrupted=interrupted)
+    finally:
+        lock.close()
