@@ -270,3 +270,21 @@ def test_result_hand_file_is_the_users_model_with_a_free_joint(robot, tmp_path):
             b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
             np.testing.assert_allclose(d.xpos[b], ours[l, :3, 3], atol=1e-9)
             np.testing.assert_allclose(d.xmat[b].reshape(3, 3), ours[l, :3, :3], atol=1e-9)
+
+
+def test_sidecar_shift_moves_the_hand_on_the_track(tmp_path):
+    """[mount] shift moves every link of the mounted hand by that vector in the hand frame."""
+    from torchhand.hand.mjcf import save_mjcf
+
+    xml = tmp_path / "allegro.xml"
+    save_mjcf(HandModel.from_mjcf(robot_file("allegro")), xml)
+    track = dataclasses.replace(torchhand.load_scene("box-turn").hands[0], model=str(xml))
+    before = track_hand(track)
+    (tmp_path / "allegro.torchhand.toml").write_text("[mount]\nshift = [0.01, -0.014, 0.002]\n")
+    after = track_hand(track)
+    q = torch.zeros(1, before.num_joints, dtype=torch.float64)
+    d = (after.forward_kinematics(q)[0, :, :3, 3] - before.forward_kinematics(q)[0, :, :3, 3]).numpy()
+    np.testing.assert_allclose(d, np.tile([0.01, -0.014, 0.002], (before.num_links, 1)), atol=1e-12)
+    (tmp_path / "allegro.torchhand.toml").write_text("[mount]\nshift = [0.01]\n")
+    with pytest.raises(torchhand.errors.InputValueError, match="mount.shift"):
+        track_hand(track)

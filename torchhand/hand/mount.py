@@ -37,6 +37,7 @@ Sidecar (``<model>.torchhand.toml`` beside the MJCF file, all keys optional)::
     origin = [0.0, 0.0, 0.034]            # hand-frame origin in the root link's parent frame, metres
     x_axis = [0.0, 0.0, 1.0]              # + x (along the fingers), root coordinates
     y_axis = [1.0, 0.0, 0.0]              # + y (made orthogonal to x), root coordinates
+    shift = [0.0, -0.014, 0.0]            # then move the hand on the track by this, hand-frame metres
 
     [rest]
     pose = "relaxed"                      # "zero" (default: q = 0 clamped) or "relaxed" (relaxed_rest)
@@ -143,10 +144,10 @@ def load_sidecar(mjcf_path) -> dict:
         doc = tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as err:
         raise FileFormatError(f"{p}: cannot read: {err}") from None
-    allowed = {"mount": {"origin", "x_axis", "y_axis"}, "rest": None}
+    allowed = {"mount": {"origin", "x_axis", "y_axis", "shift"}, "rest": None}
     for key, table in doc.items():
         if key not in allowed or not isinstance(table, dict) or (allowed[key] and set(table) - allowed[key]):
-            raise FileFormatError(f"{p}: unknown table or key {key!r}; allowed: [mount] origin, x_axis, y_axis; "
+            raise FileFormatError(f"{p}: unknown table or key {key!r}; allowed: [mount] origin, x_axis, y_axis, shift; "
                                   '[rest] pose = "zero"|"relaxed", JOINT = radians')
     for name, value in doc.get("rest", {}).items():
         if name == "pose":
@@ -159,7 +160,8 @@ def load_sidecar(mjcf_path) -> dict:
 
 
 def sidecar_frame(doc: dict, default: np.ndarray) -> np.ndarray:
-    """``F`` with the sidecar's ``[mount]`` entries replacing those of ``default`` (4, 4)."""
+    """``F`` with the sidecar's ``[mount]`` entries replacing those of ``default`` (4, 4); ``shift`` (hand-frame
+    metres) then moves the hand by that much on the track (the frame's origin by minus that much)."""
     mount = doc.get("mount", {})
     F = default.copy()
     x = _vec(mount["x_axis"], "mount.x_axis") if "x_axis" in mount else F[:3, 0]
@@ -169,6 +171,8 @@ def sidecar_frame(doc: dict, default: np.ndarray) -> np.ndarray:
     F[:3, 0], F[:3, 1], F[:3, 2] = x, y, np.cross(x, y)
     if "origin" in mount:
         F[:3, 3] = _vec(mount["origin"], "mount.origin")
+    if "shift" in mount:
+        F[:3, 3] = F[:3, 3] - F[:3, :3] @ _vec(mount["shift"], "mount.shift")
     return F
 
 
