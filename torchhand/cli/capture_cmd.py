@@ -1,0 +1,140 @@
+"""``torchhand capture estimate|synthetic``: interaction capture (Kry & Pai 2006), docs/interaction_capture.md.
+
+``torchhand capture estimate CAPTURE.npz --out DIR``
+    Joint torques tau = J^T f over the 6 + D coordinates, contact events from the force tracks, the compliance of
+    every coordinate at every event (rejected ones with a reason), C(t) and the reference trajectory
+    theta_r = theta - C tau. Writes DIR/interaction.npz, DIR/summary.json, DIR/compliance_events.png and one
+    DIR/contact_event_<e>.png per event; prints a table per coordinate. DIR must be new or empty, or hold an
+    earlier estimate and --overwrite be given. Exit 0 written; 1 no contact event (the largest force is named);
+    2 bad input.
+
+``torchhand capture synthetic --out DIR``
+    A capture with known compliance simulated by MuJoCo (a planar finger with joint springs pressing a plane;
+    needs the [test] extra): DIR/capture.npz and DIR/planar_finger.xml.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import InputValueError
+from ._common import add_threads_argument, apply_threads
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("capture", help="interaction capture: compliance and reference trajectory from forces",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    verbs = p.add_subparsers(dest="verb", metavar="VERB")
+    verbs.required = True
+
+    e = verbs.add_parser("estimate", help="compliance at contact events and the reference trajectory",
+                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    e.add_argument("capture", metavar="CAPTURE", help="capture.npz (docs/interaction_capture.md)")
+    e.add_argument("--out", required=True, metavar="DIR",
+                   help="output directory (new or empty; an earlier estimate with --overwrite)")
+    e.add_argument("--overwrite", action="store_true", help="replace an earlier estimate in --out")
+    e.add_argument("--hand", default=None, metavar="default|HAND.xml",
+                   help="the hand (default: the capture's own `hand` entry)")
+    e.add_argument("--degree", choices=["auto", "1", "2"], default="auto",
+                   help="polynomial degree of the fits (auto: 2 where the pre-contact angle is curved)")
+    e.add_argument("--method", choices=["joint", "slopes"], default="joint",
+                   help="joint: one theta_r polynomial across both windows plus c tau (default); slopes: the "
+                        "paper's change of slope at contact")
+    e.add_argument("--window-pre", type=float, default=0.05, metavar="S", help="pre-contact window, s (0.05)")
+    e.add_argument("--window-post", type=float, default=0.1, metavar="S",
+                   help="post-contact window, s (0.1: reflexes change muscle force after about 100 ms)")
+    e.add_argument("--force-threshold", type=float, default=0.05, metavar="N",
+                   help="contact threshold f_on lower bound, newtons (0.05; raised to 3 sigma of the noise)")
+    e.add_argument("--gap", type=float, default=0.05, metavar="S",
+                   help="quiet time before a contact event and merge window of one finger's sensors, s (0.05)")
+    e.add_argument("--mode", choices=["latest", "median"], default="latest",
+                   help="C(t): latest valid estimate per coordinate (default) or the median of all")
+    e.add_argument("--default-compliance", default="table1-exploring",
+                   choices=["table1-exploring", "table1-scratching"],
+                   help="compliance of coordinates without a valid estimate (Kry & Pai Table 1, extended)")
+    e.add_argument("--allow-low-rate", action="store_true", help="accept captures below 200 Hz")
+    e.add_argument("--max-event-plots", type=int, default=None, metavar="N",
+                   help="write contact_event_<e>.png for the first N events only (default: all)")
+    e.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    add_threads_argument(e)
+    e.set_defaults(func=run_estimate)
+
+    s = verbs.add_parser("synthetic", help="a capture with known compliance simulated by MuJoCo",
+                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("--out", required=True, metavar="DIR", help="output directory (new or empty)")
+    s.add_argument("--task", choices=["exploring", "scratching"], default="exploring",
+                   help="Table 1 column for the joint stiffness (default exploring)")
+    s.add_argument("--rate", type=float, default=500.0, metavar="HZ", help="frame rate, Hz (500)")
+    s.add_argument("--noise-angle-deg", type=float, default=0.2, metavar="DEG", help="angle noise, degrees (0.2)")
+    s.add_argument("--noise-force", type=float, default=0.01, metavar="N", help="force noise per component, N (0.01)")
+    s.add_argument("--presses", type=int, default=80, metavar="N", help="number of presses (contact events; 80)")
+    s.add_argument("--approach-speed", type=float, default=0.3, metavar="M_S",
+                   help="fingertip reference speed towards the plane, m/s (0.3)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the postures, trajectories and noise (0)")
+    s.set_defaults(func=run_synthetic)
+
+
+def _check_window(value: float, name: str) -> None:
+    if not value > 0:
+        raise InputValueError(f"{name}: expected a positive number of seconds, got {value}")
+
+
+def run_estimate(args) -> int:
+    apply_threads(args.threads)
+    from torchhand.interaction import (EstimateSettings, NoContactError, capture_hand, estimate_capture,
+                                       load_capture, prepare_output_dir, write_interaction)
+    from torchhand.interaction.pipeline import format_table
+    from torchhand.interaction.plots import write_plots
+
+    _check_window(args.window_pre, "--window-pre")
+    _check_window(args.window_post, "--window-post")
+    if args.max_event_plots is not None and args.max_event_plots < 0:
+        raise InputValueError(f"--max-event-plots: expected >= 0, got {args.max_event_plots}")
+    capture = load_capture(args.capture)
+    hand = capture_hand(capture, args.hand)
+    out = prepare_output_dir(Path(args.out), overwrite=args.overwrite)
+    if args.window_post > 0.1:
+        print(f"torchhand: warning: --window-post {args.window_post:g} s is longer than the 100 ms before reflexes "
+              "change muscle force; estimates may include reflex responses", file=sys.stderr)
+    settings = EstimateSettings(window_pre=args.window_pre, window_post=args.window_post,
+                                degree=None if args.degree == "auto" else int(args.degree),
+                                force_threshold=args.force_threshold, gap=args.gap, mode=args.mode,
+                                method=args.method)
+    try:
+        result = estimate_capture(capture, hand, settings, default=args.default_compliance,
+                                  allow_low_rate=args.allow_low_rate)
+    except NoContactError as err:
+        print(f"torchhand: {err}", file=sys.stderr)
+        return 1
+    write_interaction(result, out)
+    if not args.no_plots:
+        write_plots(result, out, max_events=args.max_event_plots)
+    print(format_table(result))
+    missing = [result.names[j] for j in range(len(result.names))
+               if result.trajectory.is_default[j] and (result.estimate.reason[:, j] > 2).any()]
+    if missing:
+        print(f"torchhand: warning: no valid estimate for {', '.join(missing)}; using {args.default_compliance}",
+              file=sys.stderr)
+    print(f"{result.events.count} contact events; wrote {out}")
+    return 0
+
+
+def run_synthetic(args) -> int:
+    import numpy as np
+
+    from torchhand.interaction.mujoco_truth import TruthSettings, write_truth_capture
+
+    settings = TruthSettings(task=args.task, rate=args.rate, noise_angle_deg=args.noise_angle_deg,
+                             noise_force=args.noise_force, presses=args.presses, approach_speed=args.approach_speed)
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputValueError(f"--out {out}: exists and is not an empty directory")
+    from torchhand._atomic import writable_dir
+
+    writable_dir(out)
+    path, run = write_truth_capture(out, settings, np.random.default_rng(args.seed))
+    print(f"wrote {path} ({run.capture.num_frames} frames at {settings.rate:g} Hz, {settings.presses} presses, "
+          f"hand {out / run.capture.hand})")
+    return 0

@@ -1,0 +1,30 @@
+"""Interaction capture (Kry & Pai 2006): capture files, contact events, joint compliance and reference trajectory.
+
+Pipeline (pure stages over the capture's arrays; see :mod:`torchhand.interaction.pipeline`)::
+
+    capture = load_capture("capture.npz")              # Capture: q, root_pose, fps, forces on the hand
+    result = estimate_capture(capture)                 # tau = J^T f, events, compliance, theta_r
+    write_interaction(result, out_dir)                 # interaction.npz, summary.json
+
+Generalized coordinates are the 6 + D columns of ``point_jacobian(..., wrt_root=True)``: root angular (3), root
+linear (3), then the joints. Units: metres, seconds, radians, newtons; compliance rad/(N m) (root linear m/N).
+Format and command line: docs/interaction_capture.md.
+"""
+
+from .capture import FORMAT_VERSION, Capture, capture_hand, check_against_hand, load_capture, save_capture
+from .compliance import TABLE1, default_compliance, generalized_names
+from .estimate import (REASON_NAMES, ComplianceEstimate, EstimateSettings, InteractionTrajectory, Reason,
+                       estimate_compliance, fit_slope, reference_trajectory)
+from .events import ContactEvents, detect_contact_events
+from .pipeline import (MIN_FPS, CaptureEstimate, NoContactError, estimate_capture, generalized_coordinates,
+                       joint_torques, prepare_output_dir, write_interaction)
+
+__all__ = [
+    "FORMAT_VERSION", "Capture", "capture_hand", "check_against_hand", "load_capture", "save_capture",
+    "TABLE1", "default_compliance", "generalized_names",
+    "REASON_NAMES", "ComplianceEstimate", "EstimateSettings", "InteractionTrajectory", "Reason",
+    "estimate_compliance", "fit_slope", "reference_trajectory",
+    "ContactEvents", "detect_contact_events",
+    "MIN_FPS", "CaptureEstimate", "NoContactError", "estimate_capture", "generalized_coordinates", "joint_torques",
+    "prepare_output_dir", "write_interaction",
+]
