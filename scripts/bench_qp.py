@@ -1,5 +1,16 @@
-"""QP adapter benchmark: torchhand.qp (qpth underneath) against Clarabel called per problem, same run.
+"""QP benchmarks: the batched QP kernel and torchhand.qp (qpth) against Clarabel called per problem, same run.
 
+Suite ``window`` (the default): Liu 2009 window QPs (Eq. 4, n = 6 frames) built by
+``tests/kernels/test_force_plan.py::window_problems`` and ``torchhand.kernels.force_plan.assemble_window_qp``:
+72 variables (3 hand contacts), 168 (3 hand + 4 table contacts) and 312 (5 hand + 8 table contacts), randomized box
+grasps along smooth trajectories (some infeasible, as they come), float64, batch sizes 1 and 64. Rows:
+``torchhand.kernels.convex_qp.solve_convex_qp`` (interior point, then ADMM for undecided problems),
+``torchhand.qp.solve_qp`` (qpth, ``ridge`` 1e-8 since Q is only PSD) and Clarabel per problem with its set-up
+inside the timed region. ``speedup_vs_clarabel`` and
+``speedup_vs_qpth`` are ratios of medians in this run; ``max_rel_obj_diff`` is |obj - obj_clarabel| /
+max(1, |obj_clarabel|) over the problems both solved; ``status_agreement`` compares solved / not solved.
+
+Suite ``random`` (the older rows):
 Problems: B random strictly convex QPs of the size of Liu 2009's force-planning step (12 variables = 3 contacts x
 4 pyramid coefficients, 24 inequality rows, 6 equality rows = the object's wrench), 2% of them built infeasible,
 from the tests' builder (``tests/torchhand/test_qp.py::random_qps``). Clarabel gets each problem through its
@@ -29,6 +40,10 @@ from torchhand.qp import lp_feasible, solve_qp  # noqa: E402
 
 COLUMNS = ["name", "device", "dtype", "B", "median_s", "iqr_s", "problems_per_s", "speedup", "max_rel_obj_diff",
            "status_agreement", "converged"]
+WINDOW_COLUMNS = ["name", "nz", "B", "device", "median_s", "iqr_s", "repeats", "ms_per_problem",
+                  "speedup_vs_clarabel", "speedup_vs_qpth", "max_rel_obj_diff", "status_agreement", "converged"]
+WINDOW_CASES = {72: dict(hand_slots=3, table=False), 168: dict(hand_slots=3, table=True),
+                312: dict(hand_slots=5, table=True, table_slots=8)}
 NZ, NINEQ, NEQ = 12, 24, 6
 
 
@@ -92,20 +107,80 @@ def bench_qp(device: str = "cpu", B: int = 1024, repeats: int = 3) -> list[dict]
     return rows
 
 
+def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), repeats: int = 5,
+                    qpth_repeats: int | None = None, seed: int = 0) -> list[dict]:
+    """Rows per (size, batch): ADMM kernel, qpth adapter, Clarabel per problem (see the module docstring)."""
+    sys.path.insert(0, os.path.join(HERE, "..", "tests", "kernels"))
+    from test_force_plan import window_problems
+
+    from torchhand.kernels.convex_qp import solve_convex_qp
+    from torchhand.kernels.force_plan import assemble_window_qp
+
+    qpth_repeats = repeats if qpth_repeats is None else qpth_repeats
+    conv = int(SolverStatus.CONVERGED)
+    rows = []
+    for nz in sizes:
+        for B in batches:
+            gen = torch.Generator().manual_seed(seed + nz + B)
+            qp = assemble_window_qp(**window_problems(B, gen, **WINDOW_CASES[nz]))
+            assert qp.Q.shape[-1] == nz
+            prob = {k: getattr(qp, k) for k in ("Q", "p", "G", "h", "A", "b")}
+            ref_run = _clarabel_all(prob)
+            ref = ref_run()
+            t_ref = time_fn(ref_run, "cpu", repeats, warmup=0)
+            ref_ok = np.array([st == "Solved" for _, _, st in ref])
+            ref_obj = np.array([o if st == "Solved" else np.nan for _, o, st in ref])
+            base = {"nz": nz, "B": B}
+            rows.append({"name": "clarabel per problem (set-up incl.)", **base, "device": "cpu", **t_ref,
+                         "ms_per_problem": 1e3 * t_ref["median_s"] / B, "converged": int(ref_ok.sum())})
+            args = {k: v.to(device) for k, v in prob.items()}
+            runs = [("kernel solve_convex_qp (ipm+admm)", lambda: solve_convex_qp(**args), repeats),
+                    ("qpth torchhand.qp.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats)]
+            t_qpth = None
+            for name, fn, reps in runs:
+                res = fn()
+                t = time_fn(fn, device, reps, warmup=0)
+                st = res.status.cpu().numpy()
+                ok = (st == conv) & ref_ok
+                obj = res.objective.double().cpu().numpy()
+                rel = np.abs(obj[ok] - ref_obj[ok]) / np.maximum(1.0, np.abs(ref_obj[ok]))
+                row = {"name": name, **base, "device": device, **t, "ms_per_problem": 1e3 * t["median_s"] / B,
+                       "speedup_vs_clarabel": t_ref["median_s"] / t["median_s"],
+                       "max_rel_obj_diff": float(rel.max()) if rel.size else None,
+                       "status_agreement": float(np.mean((st == conv) == ref_ok)), "converged": int((st == conv).sum())}
+                rows.append(row)
+                if name.startswith("qpth"):
+                    t_qpth = t["median_s"]
+            rows[-2]["speedup_vs_qpth"] = t_qpth / rows[-2]["median_s"]
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--device", default="cpu")
-    p.add_argument("--batch", type=int, default=1024)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--suite", choices=("window", "random", "all"), default="window")
+    p.add_argument("--batch", type=int, default=1024, help="batch of the random suite")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--qpth-repeats", type=int, default=None, help="repeats of the qpth rows (default: --repeats)")
+    p.add_argument("--sizes", type=int, nargs="+", default=[72, 168, 312], choices=sorted(WINDOW_CASES))
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 64])
+    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's choice)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
-    rows = bench_qp(a.device, a.batch, a.repeats)
     info = machine()
     print(f"machine: {info}")
-    print_table(rows, COLUMNS)
+    rows = []
+    if a.suite in ("window", "all"):
+        w = bench_window_qp(a.device, a.sizes, a.batches, a.repeats, a.qpth_repeats, a.seed)
+        print_table(w, WINDOW_COLUMNS)
+        rows += w
+    if a.suite in ("random", "all"):
+        r = bench_qp(a.device, a.batch, a.repeats)
+        print_table(r, COLUMNS)
+        rows += r
     if a.json:
         write_json(a.json, {"machine": info, "command": " ".join(sys.argv), "rows": rows})
         print(f"wrote {a.json}")

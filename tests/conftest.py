@@ -63,3 +63,12 @@ def bpy():
         pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); "
                     "install it with: pip install -e '.[blender]'")
     return blender
+
+
+@pytest.fixture
+def one_intra_op_thread():
+    """One intra-op thread for the test (small problems: on shared CPUs more threads only add contention)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

@@ -21,13 +21,7 @@ CONVERGED, INFEASIBLE, INVALID = (int(SolverStatus.CONVERGED), int(SolverStatus.
 RTOL = {torch.float32: 2e-6, torch.float64: 1e-12}
 
 
-@pytest.fixture(autouse=True)
-def _one_intra_op_thread():
-    """Small problems: on shared CPUs intra-op threads only add contention (OpenMP waits), not speed."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_intra_op_thread")
 
 
 # ----------------------------------------------------------------------------------------------- input builders

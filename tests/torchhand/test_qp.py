@@ -29,13 +29,7 @@ CONVERGED, INFEASIBLE, MAX_ITERATIONS, INVALID = (int(SolverStatus.CONVERGED), i
 OBJ_RTOL = {torch.float32: 1e-4, torch.float64: 1e-6}
 
 
-@pytest.fixture(autouse=True)
-def _one_intra_op_thread():
-    """Small problems: on shared CPUs intra-op threads only add contention (OpenMP waits), not speed."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_intra_op_thread")
 
 
 # ----------------------------------------------------------------------------------------------- input builders
@@ -390,3 +384,63 @@ def test_lp_feasible_invalid_input():
 def test_tolerance_table_is_immutable():
     with pytest.raises(TypeError):
         QP_TOLERANCES[torch.float16] = 1.0
+
+
+# ------------------------------------------------------------------------------------------- method="admm"
+def test_admm_method_agrees_with_qpth_and_clarabel(gen):
+    pytest.importorskip("clarabel")
+    prob = random_qps(7, 8, 14, 3, gen, infeasible=[4])
+    ours = solve_qp(**prob, method="admm")
+    ref = solve_qp(**prob)
+    assert isinstance(ours, QPResult)
+    assert ours.status.tolist() == ref.status.tolist() == [INFEASIBLE if i == 4 else CONVERGED for i in range(7)]
+    ok = ours.status == CONVERGED
+    torch.testing.assert_close(ours.objective[ok], ref.objective[ok], rtol=1e-6, atol=1e-6)
+    assert bool((ours.gap[ok] <= 1e-6).all()) and ours.iterations.dtype == torch.long
+    for i in range(7):
+        _, obj, st = clarabel_qp(*(prob[k][i].numpy() for k in ("Q", "p", "G", "h", "A", "b")))
+        if st == "Solved":
+            assert float(ours.objective[i]) == pytest.approx(obj, rel=1e-6, abs=1e-7)
+    # Shared matrices are expanded, a PSD Q needs no ridge, dependent equality rows are reduced, not refused.
+    Q = torch.diag(torch.tensor([1.0, 0.0], dtype=torch.float64))
+    A = torch.tensor([[0.0, 1.0], [0.0, 2.0], [0.0, 3.0]], dtype=torch.float64)
+    res = solve_qp(Q, torch.tensor([[0.0, 1.0], [1.0, 0.0]], dtype=torch.float64), A=A,
+                   b=torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64), method="admm")
+    assert res.status.tolist() == [CONVERGED, CONVERGED]
+    torch.testing.assert_close(res.z, torch.tensor([[0.0, 1.0], [-1.0, 1.0]], dtype=torch.float64))
+    with pytest.raises(InputValueError, match="method"):
+        solve_qp(prob["Q"], prob["p"], method="osqp")
+
+
+def test_admm_lp_feasible_known_answers():
+    f64 = torch.float64
+    G = -torch.eye(4, dtype=f64).expand(2, 4, 4)
+    res = lp_feasible(G, torch.zeros(2, 4, dtype=f64), torch.ones(2, 1, 4, dtype=f64),
+                      torch.tensor([[1.0], [-1.0]], dtype=f64), method="admm")
+    assert isinstance(res, FeasibilityResult)
+    assert res.feasible.tolist() == [True, False] and res.status.tolist() == [CONVERGED, INFEASIBLE]
+    assert float(res.certified_radius[1]) > 1e3
+    probs = [pyramid_grasp_lp(mu, 30.0) for mu in (1.0, 0.5, 0.001, 0.003)]
+    Gs, hs, As, bs = (torch.tensor(np.stack([p[k] for p in probs]), dtype=f64) for k in range(4))
+    res = lp_feasible(Gs, hs, As, bs, method="admm")
+    assert res.status.tolist() == [CONVERGED, CONVERGED, INFEASIBLE, INFEASIBLE]
+    res32 = lp_feasible(Gs.float(), hs.float(), As.float(), bs.float(), method="admm")
+    assert res32.feasible.tolist() == [True, True, False, False] and res32.z.dtype == torch.float32
+    G = torch.tensor([[[1.0]], [[float("nan")]]], dtype=f64)
+    res = lp_feasible(G, torch.ones(2, 1, dtype=f64), method="admm")
+    assert res.status.tolist() == [CONVERGED, INVALID]
+
+
+def test_admm_lp_feasible_against_clarabel_random(gen):
+    pytest.importorskip("clarabel")
+    B, nz, nineq, neq = 40, 5, 9, 2
+    G = torch.randn(B, nineq, nz, generator=gen, dtype=torch.float64)
+    h = torch.randn(B, nineq, generator=gen, dtype=torch.float64)
+    A = torch.randn(B, neq, nz, generator=gen, dtype=torch.float64)
+    b = torch.randn(B, neq, generator=gen, dtype=torch.float64)
+    res = lp_feasible(G, h, A, b, method="admm")
+    ref = [clarabel_qp(np.zeros((nz, nz)), np.zeros(nz), G[i].numpy(), h[i].numpy(), A[i].numpy(),
+                       b[i].numpy())[2] == "Solved" for i in range(B)]
+    assert 5 <= sum(ref) <= B - 5
+    assert res.feasible.tolist() == ref
+    assert bool((res.status != MAX_ITERATIONS).all()) and bool((res.certified_radius[~res.feasible] > 0).all())
