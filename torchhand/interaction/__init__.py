@@ -6,6 +6,11 @@ Pipeline (pure stages over the capture's arrays; see :mod:`torchhand.interaction
     result = estimate_capture(capture)                 # tau = J^T f, events, compliance, theta_r
     write_interaction(result, out_dir)                 # interaction.npz, summary.json
 
+Quasi-static resynthesis, one step of Sec. 7 (:mod:`torchhand.interaction.step`)::
+
+    state = initial_state(hand, q, root, object_pose=E, obj=obj, env=table, settings=settings)
+    state, report = quasi_static_step(state, hand, theta_r_next, root_r_next, C, obj, table, settings)
+
 Generalized coordinates are the 6 + D columns of ``point_jacobian(..., wrt_root=True)``: root angular (3), root
 linear (3), then the joints. Units: metres, seconds, radians, newtons; compliance rad/(N m) (root linear m/N).
 Format and command line: docs/interaction_capture.md.
@@ -16,6 +21,9 @@ from .compliance import TABLE1, default_compliance, generalized_names
 from .estimate import (REASON_NAMES, ComplianceEstimate, EstimateSettings, InteractionTrajectory, Reason,
                        estimate_compliance, fit_slope, reference_trajectory)
 from .events import ContactEvents, detect_contact_events
+from ._contacts import Contacts, find_contacts
+from .step import (SOLVERS, StepObject, StepReport, StepSettings, StepState, TablePlane, displace_root,
+                   initial_state, quasi_static_step, root_displacement)
 from .pipeline import (MIN_FPS, CaptureEstimate, NoContactError, estimate_capture, generalized_coordinates,
                        joint_torques, prepare_output_dir, write_interaction)
 
@@ -27,4 +35,6 @@ __all__ = [
     "ContactEvents", "detect_contact_events",
     "MIN_FPS", "CaptureEstimate", "NoContactError", "estimate_capture", "generalized_coordinates", "joint_torques",
     "prepare_output_dir", "write_interaction",
+    "Contacts", "find_contacts", "SOLVERS", "StepObject", "StepReport", "StepSettings", "StepState", "TablePlane",
+    "displace_root", "initial_state", "quasi_static_step", "root_displacement",
 ]
