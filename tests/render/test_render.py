@@ -88,11 +88,13 @@ def test_hand_and_object_where_the_camera_projects_them(rendered):
     assert (img[free][:, 2] > img[free][:, 0] + 10).mean() > 0.9
 
 
-def _overlay_pixels(img: np.ndarray) -> dict:
-    """Pixels of each overlay colour outside the legend (bottom-left quarter)."""
+def _overlay_pixels(img: np.ndarray, legend: np.ndarray | None = None) -> dict:
+    """Pixels of each overlay colour outside and inside the legend (a (H, W) mask; default the bottom-left
+    quarter)."""
     r, g, b = (img[..., i].astype(int) for i in range(3))
-    legend = np.zeros(img.shape[:2], dtype=bool)
-    legend[H // 2:, : W // 2] = True
+    if legend is None:
+        legend = np.zeros(img.shape[:2], dtype=bool)
+        legend[H // 2:, : W // 2] = True
     colours = {"cyan": (r < 90) & (g > 150) & (b > 170), "yellow": (r > 200) & (g > 150) & (b < 80),
                "red": (r > 150) & (g < 70) & (b < 70)}
     return {k: int((m & ~legend).sum()) for k, m in colours.items()} | {
@@ -110,14 +112,29 @@ def test_overlay_colours_present(tmp_path):
     assert px["cyan"] > 10 and px["yellow"] > 3 and px["red"] > 20, px  # dots and force arrows in the scene
 
 
-def test_real_overlays(rendered):
-    # The synthesized box turns on the table in these frames: its table contacts show in every frame, hand contacts
-    # where the fingers do not hide them, and force arrows in some frame outside the legend's corner (from this
-    # camera most arrows point into that corner).
+@pytest.fixture(scope="module")
+def legend_box(rendered) -> np.ndarray:
+    """(H, W) mask of the legend's box: where frame 0 differs from the same frame drawn without the legend, as a
+    bounding box grown by 2 pixels."""
+    clip, camera, frames, _, _ = rendered
+    bare = next(iter(render_frames([clip], RenderOptions(W, H, legend=False), camera=camera)))
+    diff = np.abs(frames[0].astype(int) - bare.astype(int)).sum(-1) > 0
+    rows, cols = np.nonzero(diff)
+    assert rows.size and rows.min() > H // 2 and cols.max() < W // 2, "the legend is drawn in the bottom-left corner"
+    box = np.zeros((H, W), dtype=bool)
+    box[max(rows.min() - 2, 0):rows.max() + 3, max(cols.min() - 2, 0):cols.max() + 3] = True
+    return box
+
+
+def test_real_overlays(rendered, legend_box):
+    # The synthesized box turns on the table in these frames: its table contacts show in most frames (the fingers
+    # hide the front ones and the translucent box tints the back ones), hand contacts where the fingers do not hide
+    # them, and force arrows in some frame outside the legend's box.
     clip, _, frames, _, _ = rendered
     assert clip.env_contact_mask[:10].any(-1).all() and clip.contact_mask[:10].any(-1).all()
-    px = [_overlay_pixels(f) for f in frames]
-    assert all(p["yellow"] > 0 and p["cyan_legend"] > 20 for p in px), px
+    px = [_overlay_pixels(f, legend_box) for f in frames]
+    assert all(p["cyan_legend"] > 20 and p["yellow_legend"] > 20 and p["red_legend"] > 20 for p in px), px
+    assert sum(p["yellow"] > 0 for p in px) >= 0.8 * len(px), px
     assert max(p["cyan"] for p in px) > 2 and max(p["red"] for p in px) > 3, px
 
 
