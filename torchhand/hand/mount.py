@@ -75,6 +75,24 @@ def thumb_index(model) -> int | None:
     return None
 
 
+def palm_link(hand) -> int:
+    """The link the fingers branch from (the palm): the deepest common ancestor of every finger's first link."""
+    parents = hand.chain.link_parent.tolist()
+    chains = []
+    for f in range(hand.num_fingers):
+        a, path = int(hand.finger_links[f, 0]), []
+        while a >= 0:
+            path.append(a)
+            a = parents[a]
+        chains.append(path[::-1])
+    common = 0
+    for k in range(min(len(c) for c in chains)):
+        if len({c[k] for c in chains}) != 1:
+            break
+        common = chains[0][k]
+    return common
+
+
 def hand_frame(model) -> np.ndarray:
     """``F``: the hand frame in the model's root coordinates (the root link's parent frame) at ``q = 0``, (4, 4).
 
@@ -101,19 +119,7 @@ def hand_frame(model) -> np.ndarray:
     if m.side == "left":
         y = -y
     z = np.cross(x, y)
-    # the branching link: the deepest common ancestor of the fingers' first links
-    parents = m.chain.link_parent.tolist()
-    chains = []
-    for f in range(m.num_fingers):
-        a, path = int(m.finger_links[f, 0]), []
-        while a >= 0:
-            path.append(a)
-            a = parents[a]
-        chains.append(path[::-1])
-    common = 0
-    for k in range(min(len(c) for c in chains)):
-        if len({c[k] for c in chains}) == 1:
-            common = chains[0][k]
+    common = palm_link(m)  # the branching link
     # origin: on the palm's wrist end, its volar surface PALM_DEPTH below: the palm link's surface samples give
     # the rearmost point along x and the deepest along -z, measured from the palm link's origin
     o = T[common, :3, 3]

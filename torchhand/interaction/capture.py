@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_bytes
+from .._npz import read_npz
 from ..errors import FileFormatError, InputValueError, MissingFileError, ShapeError, UnknownNameError
 
 __all__ = ["FORMAT_VERSION", "SOURCES", "Capture", "load_capture", "save_capture", "capture_hand", "check_against_hand"]
@@ -174,16 +175,7 @@ def load_capture(path) -> Capture:
         shapes, T mismatch), InputValueError (NaN / inf with the first bad frame, fps <= 0, unknown source)
     """
     path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"capture: file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise FileFormatError(f"{path}: not a readable .npz file ({err})") from None
-    missing = [k for k in _REQUIRED if k not in data]
-    if missing:
-        raise FileFormatError(f"{path}: missing key(s) {', '.join(missing)} (a capture needs {', '.join(_REQUIRED)})")
+    data = read_npz(path, _REQUIRED, "a capture (docs/interaction_capture.md)")
     version = int(data["format_version"]) if "format_version" in data else FORMAT_VERSION
     if version > FORMAT_VERSION:
         raise FileFormatError(f"{path}: format_version {version} is newer than this reader ({FORMAT_VERSION})")

@@ -1,0 +1,527 @@
+"""Contact-force planning from a grasp (Liu 2009, Sec. 3 Stage 1 and Sec. 4, Eqs. 1-4, Sec. 4.3).
+
+**Scope.** This is the planning half of Liu's main loop (Fig. 2). The hand-motion synthesis of Sec. 5 (the per-frame
+SQP that moves q, h and p) is a later stage; until it exists the grasp is **rigid**: hand contacts stay where the
+snapped grasp puts them, fixed in the object frame, and move with the object. So "the contact positions p^{k-1}
+solved by the previous iteration" are always the grasp's, and no hand contact ever slides.
+
+Stage 1 (preprocessing)
+    Initial contacts: the snapped grasp's (:mod:`.snap`). F_{-1} = argmin sum_i |f_i|^2 subject to Eq. 1 at frame 0
+    and the limits (the resolution of Liu's equilibrium torques, docs/manipulation.md); it is lambda^{k-1} of the
+    first window. When frame 0 itself is infeasible, contacts are added there as below.
+
+Window loop, for k = 0 .. T-1
+    1. Eq. 4 over t = k .. k+n-1 (n = ``window``, 6; shorter at the end of the motion), assembled by
+       :func:`torchhand.kernels.force_plan.assemble_window_qp` and solved by
+       :func:`torchhand.kernels.convex_qp.solve_convex_qp`: hand contacts at ``object_pose[t] @ p_i`` with
+       transported tangents (``R_t t1_i``, so bases do not flip), static pyramids, normal force <= ``f_max``
+       (30 N); table contacts from :func:`torchhand.contacts_env.environment_contacts` (at most 8 per frame,
+       farthest-point thinned), static or sliding as the object motion says (the sliding ray points along the
+       table's velocity relative to the object's point, i.e. against the object's), lambda >= 0 only; the required
+       wrench from :func:`torchhand.synthesis.problem.required_wrench`. F_k = B_k lambda_k is kept; F_{k+1} ..
+       are re-planned by the next window.
+    2. Infeasible (Sec. 4.3): the per-frame LPs (:func:`~torchhand.kernels.force_plan.assemble_frame_lps`,
+       :func:`torchhand.qp.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
+       are ordered by decreasing |f_i|; for contact i on link S_i the new hand point is the hand surface sample
+       (at the grasp pose) closest to h_i that is not on S_i, paired with its closest object point (normal from
+       that face). Pairs are added one at a time, each active from t_a on, and the LPs re-tested; the loop stops
+       when every frame of the window is feasible. No set that makes the window feasible:
+       :class:`GraspUnsuitable` with the frame and the wrench deficit.
+
+Readings and deviations (documented choices; the paper is silent or the rigid grasp forces them)
+    * "The contact forces" that order the contacts do not exist when Eq. 4 is infeasible: they are taken from the
+      least-squares wrench fit at t_a, ``argmin |W lambda - w|^2 + 1e-6 sum_i |f_i|^2`` subject to the limits
+      (the forces the contacts would push with, saturated ones first). Its residual ``w - W lambda`` is the
+      **wrench deficit** reported by :class:`GraspUnsuitable`.
+    * New contacts go to the first infeasible frame of the window. Liu adds them at the window's last frame
+      because earlier frames were made feasible by earlier windows; with rigid contacts that first infeasible frame
+      *is* the last one, except in the first window (and Stage 1), whose frames are all new.
+    * A candidate's link must hold no contact yet (Liu: only "not on S_i"), so every addition brings a new link;
+      once the closest candidates of all contacts are taken, the next round cycles again with the added ones.
+    * Added contacts keep their first position (no synthesis moves them onto the hand yet) and stay to the end.
+    * The per-frame LP status and the QP status are recorded per frame; a QP that fails although every LP is
+      feasible (a solver failure, not an infeasible motion) keeps the LP's witness forces for that frame and its
+      status says so.
+
+Conventions: world z-up, metres, seconds, newtons; contact normals point into the object; f = B lambda is the force
+of the hand (or the table) on the object; wrench = (force, torque about the COM), world.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..errors import InputValueError
+from ..kernels.convex_qp import solve_convex_qp
+from ..kernels.force_plan import FrameLPs, WindowQP, assemble_frame_lps, assemble_window_qp
+from ..kernels.frames import tangent_frame
+from ..kernels.status import SolverStatus
+from .grasp import Grasp, check_grasp_hand, grasp_hand
+from .snap import SNAP_TOL, hand_surface_in_object, snap_grasp, signed_distance
+
+__all__ = ["PlanSettings", "ForcePlan", "WindowRecord", "GraspUnsuitable", "plan_motion", "plan_forces"]
+
+_CONVERGED = int(SolverStatus.CONVERGED)
+_LP_TOL = 1e-7          # per-frame LP witness: largest violation, relative to 1 + |w|_inf (newtons)
+
+
+class GraspUnsuitable(RuntimeError):
+    """The grasp cannot realise the object motion (Liu 2009, Sec. 4.3: no set of added contacts makes a window
+    feasible). Not a :class:`~torchhand.errors.TorchhandError` (the input is valid; the motion is not achievable):
+    the ``manipulate`` command reports it with exit code 1.
+
+    frame: the infeasible frame; deficit: the wrench the contacts cannot produce there, (6,), N and N m (force,
+    torque about the COM, world); contacts: hand contact links tried (including added ones)
+    """
+
+    def __init__(self, frame: int, deficit: np.ndarray, contacts: tuple):
+        self.frame, self.deficit, self.contacts = int(frame), np.asarray(deficit, dtype=np.float64), tuple(contacts)
+        f, t = np.linalg.norm(self.deficit[:3]), np.linalg.norm(self.deficit[3:])
+        super().__init__(f"the grasp cannot realise the motion at frame {self.frame}: wrench deficit "
+                         f"{f:.3f} N and {t:.4f} N m with contacts {', '.join(self.contacts) or '-'} (force "
+                         f"{np.array2string(self.deficit[:3], precision=3)} N, torque "
+                         f"{np.array2string(self.deficit[3:], precision=4)} N m)")
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """Settings of :func:`plan_motion`.
+
+    window: frames per planning window, n (Liu: 6; 5-10 work)
+    max_contact_force: normal-force limit of each hand contact, newtons (Liu: 30 N)
+    added_contacts: add contacts when a window is infeasible (Sec. 4.3); False: infeasible = unsuitable
+    max_added: most contacts added over the whole motion
+    mass: object mass override, kg (inertia scaled with it), or None (the scene's)
+    friction: hand-object friction override, or None (the scene's)
+    snap_tol: snap tolerance for a grasp without contacts, metres
+    max_env_contacts: table contacts kept per frame
+    keep_problems: keep every window QP and per-frame LP in ``ForcePlan.records`` (for tests and references)
+    """
+
+    window: int = 6
+    max_contact_force: float = 30.0
+    added_contacts: bool = True
+    max_added: int = 8
+    mass: float | None = None
+    friction: float | None = None
+    snap_tol: float = SNAP_TOL
+    max_env_contacts: int = 8
+    keep_problems: bool = False
+
+    def __post_init__(self):
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
+            raise InputValueError(f"window: expected an integer >= 1, got {self.window!r}")
+        for name in ("max_contact_force", "snap_tol"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise InputValueError(f"{name}: expected a positive number, got {v!r}")
+        for name in ("mass", "friction"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise InputValueError(f"{name}: expected a positive number or None, got {v!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class WindowRecord:
+    """One solved problem (kept with ``keep_problems``): frame k, the window QP (B = 1) and its result's
+    objective (of 1/2 z^T Q z + p^T z, without ``qp.offset``) and status; or, for an LP test, ``lps`` (B = 1) and
+    the per-frame verdicts ``feasible (n,)``."""
+
+    frame: int
+    qp: WindowQP | None = None
+    objective: float = float("nan")
+    status: int = -1
+    lps: FrameLPs | None = None
+    feasible: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ForcePlan:
+    """Planned contact forces over a motion (T frames, K slots: the hand contacts in order of creation, then the
+    table slots). NumPy, float64.
+
+    forces: F_t, force of each contact on the object, (T, K, 3), world, newtons (0 where inactive)
+    lam: basis coefficients lambda, (T, K, 4), newtons
+    points: contact points, (T, K, 3), world, metres; normals: into the object, (T, K, 3), world
+    mask: the slot is active at frame t, (T, K) bool
+    hand: hand slots, (K,) bool (False: table); links: (K,) link names ("table" for table slots)
+    hand_local: hand contact points in their link frame, (K, 3), metres (0 for table slots)
+    object_local: hand contact points on the object, object frame, (K, 3), metres (0 for table slots)
+    added: the slot is an added contact (Sec. 4.3) and active at t, (T, K) bool
+    added_at: frame an added slot starts, (K,) int (-1: initial or table); added_from: slot it was generated from,
+        (K,) int (-1)
+    f_init: F_{-1} of Stage 1, (K, 3), newtons
+    com: centre of mass, (T, 3); wrench: required wrench, (T, 6), N and N m
+    status: window-QP status of each frame's window, (T,) int8 (:class:`~torchhand.kernels.status.SolverStatus`)
+    objective: Eq. 4's value sum_t sum_i |f_i^t - f_i^(t-1)|^2 of each frame's window, (T,), N^2
+    timings: seconds: ``stage1_s``, ``plan_s`` (total), ``per_frame_s`` (list of T), ``added_s``
+    records: the kept problems (:class:`WindowRecord`), () unless ``keep_problems``
+    """
+
+    forces: np.ndarray
+    lam: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    mask: np.ndarray
+    hand: np.ndarray
+    links: tuple
+    hand_local: np.ndarray
+    object_local: np.ndarray
+    added: np.ndarray
+    added_at: np.ndarray
+    added_from: np.ndarray
+    f_init: np.ndarray
+    com: np.ndarray
+    wrench: np.ndarray
+    status: np.ndarray
+    objective: np.ndarray
+    timings: dict = field(default_factory=dict)
+    records: tuple = ()
+
+    @property
+    def T(self) -> int:
+        return int(self.forces.shape[0])
+
+    @property
+    def num_added(self) -> int:
+        return int((self.added_at >= 0).sum())
+
+
+# ------------------------------------------------------------------------------------------------ contact state
+@dataclass
+class _Contacts:
+    """Hand contacts (object frame) and the candidates for new ones (mutable working state of one planning run)."""
+
+    link: list           # link index per contact
+    h: list              # link-local hand point (3,)
+    p: list              # object-frame point (3,)
+    n: list              # object-frame normal into the object (3,)
+    t1: list             # object-frame first tangent (3,)
+    start: list          # first active frame
+    source: list         # slot it was generated from (-1)
+    h_obj: list          # the hand point in the object frame at the grasp pose (3,)
+
+
+def _normal_frame(n: np.ndarray) -> np.ndarray:
+    t1, _ = tangent_frame(torch.as_tensor(n, dtype=torch.float64)[None])
+    return t1[0].numpy()
+
+
+class _Geometry:
+    """Everything fixed over a run: the object's motion and required wrench, the table contacts, the hand surface at
+    the grasp pose (object frame) and the object mesh."""
+
+    def __init__(self, scene, grasp: Grasp, hand, settings: PlanSettings):
+        from ..scene import environment_contacts
+        from ..synthesis.problem import _thin_env, required_wrench
+
+        obj = scene.object
+        mass = float(settings.mass if settings.mass is not None else obj.mass)
+        inertia = torch.tensor(np.array(obj.inertia), dtype=torch.float64) * (mass / float(obj.mass))
+        pose = scene.object_pose.double()
+        com, wrench = required_wrench(pose, torch.tensor(np.array(obj.com), dtype=torch.float64), mass, inertia,
+                                      scene.gravity.double(), scene.fps)
+        self.T = int(pose.shape[0])
+        self.pose = pose.numpy()
+        self.com, self.wrench = com.numpy(), wrench.numpy()
+        self.mu = float(settings.friction if settings.friction is not None else scene.friction)
+        self.mu_env = float(scene.environment.friction)
+        env = _thin_env(environment_contacts(scene), settings.max_env_contacts)
+        self.env_points = env.points.double().numpy()                       # (T, E, 3)
+        self.env_mask = env.mask.numpy()
+        self.env_slide = -env.sliding_velocity.double().numpy()             # table point relative to object point
+        self.E = int(self.env_mask.shape[1])
+        self.mesh = obj.mesh
+        self.hand = hand
+        self.samples = hand_surface_in_object(hand, grasp.q, grasp.wrist_in_object)          # (S, 3)
+        self.sample_link = hand.sample_link.cpu().numpy()
+        self.sample_local = hand.sample_points.detach().cpu().double().numpy()
+        qt = torch.as_tensor(grasp.q)[None]
+        self.link_pose = (torch.as_tensor(grasp.wrist_in_object) @ hand.forward_kinematics(qt)[0]).numpy()
+
+
+def _initial_contacts(geo: _Geometry, grasp: Grasp) -> _Contacts:
+    c = _Contacts([], [], [], [], [], [], [], [])
+    _, _, nrm = signed_distance(geo.mesh, grasp.contact_object)
+    for name, h, p, n_out in zip(grasp.contact_links, grasp.contact_hand, grasp.contact_object, nrm):
+        _add(c, geo, geo.hand.link_index(name), h, p, -n_out, 0, -1)
+    return c
+
+
+def _add(c: _Contacts, geo: _Geometry, link: int, h, p, n, start: int, source: int) -> None:
+    n = np.asarray(n, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    T = geo.link_pose[link]
+    c.link.append(int(link)), c.h.append(np.asarray(h, dtype=np.float64)), c.p.append(np.asarray(p, dtype=np.float64))
+    c.n.append(n), c.t1.append(_normal_frame(n)), c.start.append(int(start)), c.source.append(int(source))
+    c.h_obj.append(T[:3, :3] @ np.asarray(h, dtype=np.float64) + T[:3, 3])
+
+
+def _candidate(c: _Contacts, geo: _Geometry, i: int):
+    """Sec. 4.3: the hand sample closest to contact i's hand point on a link holding no contact, and its closest
+    object point with that face's inward normal; None when every link holds a contact."""
+    free = ~np.isin(geo.sample_link, np.array(c.link))
+    if not free.any():
+        return None
+    d = np.linalg.norm(geo.samples - c.h_obj[i], axis=1)
+    d[~free] = np.inf
+    s = int(np.argmin(d))
+    _, p, n_out = signed_distance(geo.mesh, geo.samples[s:s + 1])
+    return int(geo.sample_link[s]), geo.sample_local[s], p[0], -n_out[0]
+
+
+# ------------------------------------------------------------------------------------------------ window problems
+def _window_arrays(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings):
+    """Per-window inputs of the force_plan kernels (B = 1): points, normals, com, mu, wrench, mask, hand, sliding,
+    tangent."""
+    H, E = len(c.link), geo.E
+    M = H + E
+    ts = np.arange(k, k + n)
+    R, o = geo.pose[ts, :3, :3], geo.pose[ts, :3, 3]
+    pts = np.zeros((n, M, 3))
+    nrm = np.zeros((n, M, 3))
+    tan = np.zeros((n, M, 3))
+    slide = np.zeros((n, M, 3))
+    mask = np.zeros((n, M), dtype=bool)
+    if H:
+        P, N, T1 = np.stack(c.p), np.stack(c.n), np.stack(c.t1)
+        pts[:, :H] = np.einsum("tij,hj->thi", R, P) + o[:, None]
+        nrm[:, :H] = np.einsum("tij,hj->thi", R, N)
+        tan[:, :H] = np.einsum("tij,hj->thi", R, T1)
+        mask[:, :H] = ts[:, None] >= np.array(c.start)[None]
+    if E:
+        pts[:, H:] = geo.env_points[ts]
+        nrm[:, H:] = (0.0, 0.0, 1.0)
+        tan[:, H:] = (1.0, 0.0, 0.0)
+        slide[:, H:] = geo.env_slide[ts]
+        mask[:, H:] = geo.env_mask[ts]
+    mu = np.array([geo.mu] * H + [geo.mu_env] * E)
+    hand = np.array([True] * H + [False] * E)
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)[None]  # noqa: E731
+    return dict(points=t(pts), normals=t(nrm), com=t(geo.com[ts]), mu=t(mu), wrench=t(geo.wrench[ts]),
+                mask=torch.as_tensor(mask)[None], hand=torch.as_tensor(hand)[None],
+                f_max=float(settings.max_contact_force), sliding=t(slide), tangent=t(tan))
+
+
+def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray, settings: PlanSettings,
+                records: list | None = None, z_prev: np.ndarray | None = None, method: str = "admm"):
+    """Solve Eq. 4 for the window t = k .. k+n-1 with the current contacts (no additions).
+
+    f_prev: B^{k-1} lambda^{k-1} per slot, (M, 3), newtons (M = hand contacts + table slots).
+    z_prev: the previous window's solution, shifted by one frame into a warm start when its slots are the same.
+    method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started; the default: on these
+    problems the cold interior-point path can stop with a complementarity gap of ~1e-5 N^2 that its CONVERGED
+    test does not catch, docs/manipulation.md) or "ipm" (the fallback for thin feasible sets, where ADMM stalls
+    or declares infeasibility too early).
+    Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args, z).
+    """
+    args = _window_arrays(c, geo, k, n, settings)
+    qp = assemble_window_qp(f_prev=torch.as_tensor(f_prev, dtype=torch.float64)[None], **args)
+    M = args["points"].shape[2]
+    warm = None
+    if z_prev is not None and z_prev.shape[0] in (4 * M * n, 4 * M * (n + 1)):     # same slots: shift one frame
+        z_prev = torch.as_tensor(z_prev)[4 * M:]
+        warm = (torch.cat([z_prev, z_prev[-4 * M:]]) if z_prev.shape[0] < 4 * M * n else z_prev)[None], None, None
+    res = solve_convex_qp(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm if method == "admm" else None,
+                          method=method)
+    status = int(res.status[0])
+    obj = float(res.objective[0] + qp.offset[0])
+    if records is not None:
+        records.append(WindowRecord(frame=k, qp=qp, objective=float(res.objective[0]), status=status))
+    lam = res.z[0].reshape(n, M, 4).clamp_min(0).numpy()
+    return lam, qp.basis[0].numpy(), status, obj, args, res.z[0].numpy()
+
+
+def _frame_feasible(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings,
+                    records: list | None = None) -> tuple[np.ndarray, FrameLPs, torch.Tensor]:
+    """Per-frame LP feasibility of the window (Eq. 4 without objective), the n LPs in one batch.
+
+    Decided by the convex-QP kernel with Q = 0 (interior point first, then ADMM for the undecided): feasible iff
+    CONVERGED and the witness's own residuals (measured here, in newtons) are below ``_LP_TOL (1 + |b|)``; an LP
+    the kernel leaves undecided counts as infeasible. (:func:`torchhand.qp.lp_feasible` with ``method="admm"``
+    scales its tolerance with the iterate's size, so on nearly infeasible frames, whose ADMM iterates grow, it can
+    answer feasible where HiGHS proves infeasibility; docs/manipulation.md.)
+    Returns (feasible (n,), lps, witness z (n, 4 M)).
+    """
+    args = _window_arrays(c, geo, k, n, settings)
+    lps = assemble_frame_lps(**args)
+    G, h, A, b = (x.flatten(0, 1) for x in lps)
+    Z = G.new_zeros(G.shape[0], G.shape[2], G.shape[2])
+    res = solve_convex_qp(Z, G.new_zeros(G.shape[0], G.shape[2]), G, h, A, b, method="ipm")
+    z = res.z
+    viol = torch.maximum((torch.einsum("bij,bj->bi", G, z) - h).clamp_min(0).amax(1),
+                         (torch.einsum("bij,bj->bi", A, z) - b).abs().amax(1))
+    feasible = ((res.status == _CONVERGED) & (viol <= _LP_TOL * (1 + b.abs().amax(1)))).numpy().copy()
+    if records is not None:
+        records.append(WindowRecord(frame=k, lps=lps, feasible=feasible))
+    return feasible, lps, z
+
+
+def _wrench_fit(c: _Contacts, geo: _Geometry, t: int, settings: PlanSettings):
+    """Least-squares wrench fit at frame t: argmin |W lambda - w|^2 + 1e-6 sum |f|^2 s.t. the limits.
+    Returns (forces (M, 3), deficit w - W lambda (6,))."""
+    args = _window_arrays(c, geo, t, 1, settings)
+    lps = assemble_frame_lps(**args)
+    W, w = lps.A[0, 0], lps.b[0, 0]
+    basis = assemble_window_qp(f_prev=args["points"].new_zeros(1, args["points"].shape[2], 3), **args).basis[0, 0]
+    M = basis.shape[0]
+    Bd = torch.block_diag(*basis.unbind(0)) if M else W.new_zeros(0, 0)
+    zero = (basis.abs().sum(-2) == 0).reshape(-1).to(W.dtype)
+    Q = 2 * (W.T @ W + 1e-6 * Bd.T @ Bd + torch.diag(zero))
+    res = solve_convex_qp(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0])
+    lam = res.z[0].clamp_min(0)
+    forces = (basis @ lam.reshape(M, 4, 1)).squeeze(-1)
+    return forces.numpy(), (w - W @ lam).numpy()
+
+
+def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.ndarray, settings: PlanSettings,
+                  records: list | None) -> int:
+    """Sec. 4.3 at window k whose per-frame LPs ``feasible (n,)`` are not all true. Returns contacts added;
+    raises GraspUnsuitable when no set makes the window feasible."""
+    t_a = k + int(np.argmin(feasible))
+    added = 0
+    if settings.added_contacts:
+        used = sum(1 for s in c.source if s >= 0)
+        tried: set = set()
+        while used + added < settings.max_added and not feasible.all():
+            forces, _ = _wrench_fit(c, geo, t_a, settings)
+            H = len(c.link)
+            active = [i for i in range(H) if c.start[i] <= t_a]
+            order = sorted(active, key=lambda i: -float(np.linalg.norm(forces[i])))
+            progress = False
+            for i in order:
+                if i in tried or used + added >= settings.max_added:
+                    continue
+                tried.add(i)
+                cand = _candidate(c, geo, i)
+                if cand is None:
+                    continue
+                _add(c, geo, cand[0], cand[1], cand[2], cand[3], t_a, i)
+                added += 1
+                progress = True
+                feasible, _, _ = _frame_feasible(c, geo, k, n, settings, records)
+                if feasible.all():
+                    break
+            if not progress:
+                break
+    if not feasible.all():
+        t_bad = k + int(np.argmin(feasible))
+        _, deficit = _wrench_fit(c, geo, t_bad, settings)
+        raise GraspUnsuitable(t_bad, deficit, tuple(geo.hand.link_names[l] for l in c.link))
+    return added
+
+
+def _qp(c, geo, k, n, f_prev, settings, records, z_prev=None):
+    """The window QP by ADMM (warm-started), then by the interior point when ADMM does not converge."""
+    out = plan_forces(c, geo, k, n, f_prev, settings, records, z_prev)
+    if out[2] != _CONVERGED:
+        out = plan_forces(c, geo, k, n, f_prev, settings, records, method="ipm")
+    return out
+
+
+def _solve(c, geo, k, n, f_prev, settings, records, z_prev=None):
+    """Eq. 4 at window k, with contacts added when infeasible. Returns (lambda, basis, status, objective, args, z)."""
+    H0 = len(c.link)
+    out = _qp(c, geo, k, n, _pad(f_prev, H0, geo.E), settings, records, z_prev)
+    if out[2] == _CONVERGED:
+        return out
+    feasible, _, _ = _frame_feasible(c, geo, k, n, settings, records)
+    if not feasible.all():
+        _add_contacts(c, geo, k, n, feasible, settings, records)
+        out = _qp(c, geo, k, n, _pad(f_prev, H0, geo.E, len(c.link)), settings, records)
+        if out[2] == _CONVERGED:
+            return out
+    # every frame's LP is feasible but the QP failed (a solver failure, not an infeasible motion): the LPs' witness
+    lam, basis, status, _, args, _ = out
+    _, _, zl = _frame_feasible(c, geo, k, n, settings, records)
+    M = args["points"].shape[2]
+    return zl.reshape(n, M, 4).clamp_min(0).numpy(), basis, status, float("nan"), args, None
+
+
+def _pad(f_prev: np.ndarray, H_old: int, E: int, H_new: int | None = None) -> np.ndarray:
+    """f_prev (H_old + E, 3) with zero rows for hand slots added after it (H_new - H_old of them)."""
+    H_new = H_old if H_new is None else H_new
+    return np.concatenate([f_prev[:H_old], np.zeros((H_new - H_old, 3)), f_prev[H_old:H_old + E]], 0)
+
+
+# ------------------------------------------------------------------------------------------------ the whole motion
+def plan_motion(scene, grasp: Grasp, settings: PlanSettings | None = None, *, hand=None) -> ForcePlan:
+    """Plan contact forces for ``scene``'s object motion from ``grasp`` (module docstring; rigid grasp, planning
+    stage only: the hand-motion synthesis of Liu's Sec. 5 is not part of this function).
+
+    Args:
+        scene: a :class:`~torchhand.scene.Scene` (object, its pose track, friction, table); its hand tracks are
+            not used
+        grasp: the grasp on the scene's object; snapped here (``settings.snap_tol``) when it has no contacts
+        settings: :class:`PlanSettings`
+        hand: the grasp's hand model (default :func:`~torchhand.manipulation.grasp.grasp_hand`)
+
+    Returns:
+        :class:`ForcePlan`
+
+    Raises:
+        GraspUnsuitable: a window stays infeasible whatever contacts are added (frame and wrench deficit);
+        InputValueError / UnknownNameError: a grasp that does not fit its hand or cannot be snapped.
+    """
+    settings = settings or PlanSettings()
+    t_start = time.perf_counter()
+    hand = (hand or grasp_hand(grasp)).to("cpu", torch.float64)
+    check_grasp_hand(grasp, hand)
+    if not grasp.has_contacts:
+        grasp, _ = snap_grasp(grasp, hand, scene.object.mesh, tol=settings.snap_tol)
+    geo = _Geometry(scene, grasp, hand, settings)
+    if geo.T < 1:
+        raise InputValueError("scene: the object motion has no frames")
+    c = _initial_contacts(geo, grasp)
+    records: list | None = [] if settings.keep_problems else None
+    E = geo.E
+
+    # Stage 1: F_{-1} = argmin sum |f|^2 s.t. Eq. 1 at frame 0 (f_prev = 0 makes Eq. 3 exactly that).
+    lam, basis, status, _, _, _ = _solve(c, geo, 0, 1, np.zeros((len(c.link) + E, 3)), settings, records)
+    f_prev = np.einsum("mij,mj->mi", basis[0], lam[0])
+    f_init_h, f_init_vals = len(c.link), f_prev.copy()
+    t_stage1 = time.perf_counter()
+
+    per_frame, out, z = [], [], None
+    for k in range(geo.T):
+        t0 = time.perf_counter()
+        n = min(settings.window, geo.T - k)
+        H_before = len(f_prev) - E
+        lam, basis, status, obj, args, z = _solve(c, geo, k, n, _pad(f_prev, H_before, E, len(c.link)), settings,
+                                                  records, z)
+        f_k = np.einsum("mij,mj->mi", basis[0], lam[0])
+        out.append((len(c.link), lam[0], f_k, args["points"][0, 0].numpy(), args["normals"][0, 0].numpy(),
+                    args["mask"][0, 0].numpy(), status, obj))
+        f_prev = f_k
+        per_frame.append(time.perf_counter() - t0)
+
+    # Assemble (T, K) arrays: hand slots in order of creation, then table slots.
+    H = len(c.link)
+    K, T = H + E, geo.T
+    forces, lams = np.zeros((T, K, 3)), np.zeros((T, K, 4))
+    points, normals, mask = np.zeros((T, K, 3)), np.zeros((T, K, 3)), np.zeros((T, K), dtype=bool)
+    status_t, obj_t = np.zeros(T, dtype=np.int8), np.zeros(T)
+    for t, (h, lam_t, f_t, p_t, n_t, m_t, st, ob) in enumerate(out):
+        sl = np.r_[np.arange(h), H + np.arange(E)]
+        forces[t, sl], lams[t, sl], points[t, sl], normals[t, sl], mask[t, sl] = f_t, lam_t, p_t, n_t, m_t
+        status_t[t], obj_t[t] = st, ob
+    f_init = np.zeros((K, 3))
+    f_init[np.r_[np.arange(f_init_h), H + np.arange(E)]] = f_init_vals
+    added_at = np.array([s if src >= 0 else -1 for s, src in zip(c.start, c.source)] + [-1] * E, dtype=np.int64)
+    added = mask & (added_at >= 0)[None]
+    hand_flags = np.array([True] * H + [False] * E)
+    links = tuple(hand.link_names[l] for l in c.link) + ("table",) * E
+    t_end = time.perf_counter()
+    return ForcePlan(
+        forces=forces, lam=lams, points=points, normals=normals, mask=mask, hand=hand_flags, links=links,
+        hand_local=np.concatenate([np.stack(c.h), np.zeros((E, 3))]) if H else np.zeros((K, 3)),
+        object_local=np.concatenate([np.stack(c.p), np.zeros((E, 3))]) if H else np.zeros((K, 3)),
+        added=added, added_at=added_at, added_from=np.array(c.source + [-1] * E, dtype=np.int64), f_init=f_init,
+        com=geo.com, wrench=geo.wrench, status=status_t, objective=obj_t,
+        timings={"stage1_s": t_stage1 - t_start, "plan_s": t_end - t_stage1, "per_frame_s": per_frame},
+        records=tuple(records or ()))
+
