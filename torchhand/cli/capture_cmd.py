@@ -11,6 +11,15 @@
 ``torchhand capture synthetic --out DIR``
     A capture with known compliance simulated by MuJoCo (a planar finger with joint springs pressing a plane;
     needs the [test] extra): DIR/capture.npz and DIR/planar_finger.xml.
+
+``torchhand capture resynthesize INTERACTION --scene SCENE --out DIR``
+    Quasi-static resynthesis (Sec. 7-8) of an interaction trajectory (interaction.npz) with the scene's object,
+    table and hand: contacts, friction pyramids, G = J C J^T with root compliance, the object's rigid-body terms,
+    object-table contacts, the contact LCP (Lemke for one rollout, batched PGS for several), grip adjustment on slip.
+    --mass, --compliance-scale and --friction take comma-separated lists and expand to every combination, one
+    rollout each. Writes the result directory of docs/result_format.md (stats.json method "kry_pai", one
+    solutions/sol_XXX.npz per completed rollout). Exit 0 written; 1 every rollout stopped at an unsolved LCP
+    (the step is named); 2 bad input.
 """
 
 from __future__ import annotations
@@ -75,6 +84,33 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--seed", type=int, default=0, help="seed of the postures, trajectories and noise (0)")
     s.set_defaults(func=run_synthetic)
 
+    r = verbs.add_parser("resynthesize", help="quasi-static resynthesis of an interaction on a scene's object",
+                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("interaction", metavar="INTERACTION", help="interaction.npz (docs/interaction_capture.md)")
+    r.add_argument("--scene", required=True, metavar="SCENE", help="built-in scene name or scene directory")
+    r.add_argument("--out", required=True, metavar="DIR",
+                   help="result directory (new or empty; an earlier result with --overwrite)")
+    r.add_argument("--overwrite", action="store_true", help="replace an earlier result in --out")
+    r.add_argument("--dt", type=float, default=None, metavar="S", help="step h, s (default 1/fps of the scene)")
+    r.add_argument("--mass", default=None, metavar="KG[,KG...]", help="object masses, one rollout each")
+    r.add_argument("--compliance-scale", default="1", metavar="S[,S...]", help="scales of the compliance C (1)")
+    r.add_argument("--friction", default=None, metavar="MU[,MU...]", help="hand-object friction coefficients")
+    r.add_argument("--grip", choices=["none", "delayed", "imminent"], default="none",
+                   help="grip adjustment on slip (Sec. 8.1): none, delayed (100 ms after slip) or imminent")
+    r.add_argument("--slip-ratio", type=float, default=0.9, metavar="R", help="imminent slip at rho > R mu (0.9)")
+    r.add_argument("--min-force", type=float, default=0.2, metavar="N", help="watch contacts above N newtons (0.2)")
+    r.add_argument("--tighten", type=float, default=0.95, metavar="F", help="compliance factor per step (0.95)")
+    r.add_argument("--grip-floor", type=float, default=0.2, metavar="F", help="lowest compliance scale (0.2)")
+    r.add_argument("--grip-delay", type=float, default=0.1, metavar="S", help="reaction delay, s (0.1)")
+    r.add_argument("--pyramid-m", type=int, default=4, metavar="M", help="friction pyramid direction pairs (4)")
+    r.add_argument("--solver", choices=["lemke", "pgs", "auto"], default=None,
+                   help="LCP solver (default: lemke for one rollout, auto = batched PGS + Lemke for several)")
+    r.add_argument("--settle-steps", type=int, default=0, metavar="N",
+                   help="steps at the first reference before frame 0, object under gravity on the table (0)")
+    r.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="rollout dtype (float64)")
+    add_threads_argument(r)
+    r.set_defaults(func=run_resynthesize)
+
 
 def _check_window(value: float, name: str) -> None:
     if not value > 0:
@@ -119,6 +155,57 @@ def run_estimate(args) -> int:
               file=sys.stderr)
     print(f"{result.events.count} contact events; wrote {out}")
     return 0
+
+
+def _floats(text, name: str) -> tuple:
+    if text is None:
+        return (None,)
+    try:
+        values = tuple(float(x) for x in str(text).split(",") if x.strip())
+    except ValueError:
+        raise InputValueError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise InputValueError(f"{name}: expected at least one number, got {text!r}")
+    return values
+
+
+def run_resynthesize(args) -> int:
+    import torch
+
+    from torchhand.interaction.grip import GripSettings
+    from torchhand.interaction.resynth import (ResynthSettings, _progress_line, expand_variants, load_interaction,
+                                               prepare_result_dir, resynthesize, write_resynthesis)
+    from torchhand.scene import load_scene
+
+    apply_threads(args.threads)
+    grip = GripSettings(mode=args.grip, ratio=args.slip_ratio, min_force=args.min_force, factor=args.tighten,
+                        floor=args.grip_floor, delay=args.grip_delay)
+    settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
+                               settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype))
+    variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale, "--compliance-scale"),
+                               _floats(args.friction, "--friction"))
+    writer = prepare_result_dir(args.out, overwrite=args.overwrite)
+    try:
+        inter = load_interaction(args.interaction)
+        scene = load_scene(args.scene)
+        result = resynthesize(inter, scene, variants=variants, settings=settings, progress=_progress_line)
+    except BaseException:
+        writer.abandon()
+        raise
+    out = write_resynthesis(result, writer=writer)
+    ok = [r for r in result.rollouts if r.ok]
+    for i, r in enumerate(result.rollouts):
+        v = r.variant
+        line = (f"rollout {i} (mass {v.mass if v.mass is not None else scene.object.mass:g} kg, friction "
+                f"{v.friction if v.friction is not None else scene.friction:g}, compliance x{v.compliance_scale:g}): ")
+        if r.ok:
+            print(line + f"max object slip {1e3 * r.object_slip.max():.1f} mm, {len(r.grip_events)} grip events, "
+                  f"max |theta_err| {r.theta_err.max():.2e}")
+        else:
+            print(line + f"stopped at step {r.failed_step} ({r.failed_status}): {r.status.message}", file=sys.stderr)
+    print(f"{len(ok)}/{len(result.rollouts)} rollouts completed, {result.timings['per_step_ms']:.1f} ms per step; "
+          f"wrote {out}")
+    return 0 if ok else 1
 
 
 def run_synthetic(args) -> int:

@@ -22,7 +22,8 @@ Stages (pure functions over the capture's arrays):
 ``event_time`` (E,) s, ``event_frame`` (E,), ``event_sensor`` (E,), ``estimates`` (E, 6 + D) (NaN where
 rejected), ``raw_estimates``, ``stderr``, ``reasons`` (E, 6 + D) int with names ``reason_names`` (code = index),
 ``windows`` (E, 3) frames, ``names`` (6 + D,), ``joint_names`` (D,), ``default_compliance`` (6 + D,),
-``truth_compliance`` (when the capture has one), ``fps``, ``settings`` (JSON string), ``source``.
+``truth_compliance`` (when the capture has one), ``root_origin`` (4, 4) (the capture's first root pose: the
+root coordinates are relative to it), ``fps``, ``settings`` (JSON string), ``source``.
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ class CaptureEstimate:
     fps: float
     truth: np.ndarray | None
     source: str | None
+    root_origin: np.ndarray | None = None
 
     def summary(self) -> dict:
         """Per coordinate: median, IQR, counts, rejections by reason, and the error against the truth if known."""
@@ -183,7 +185,8 @@ def estimate_capture(capture: Capture, hand=None, settings: EstimateSettings = E
     traj = reference_trajectory(theta, tau, est, events.frame, defaults, settings.mode)
     return CaptureEstimate(names=generalized_names(capture.joint_names), theta=theta, tau=tau, events=events,
                            estimate=est, trajectory=traj, defaults=defaults, default_source=source,
-                           settings=settings, fps=capture.fps, truth=capture.truth_compliance, source=capture.source)
+                           settings=settings, fps=capture.fps, truth=capture.truth_compliance, source=capture.source,
+                           root_origin=np.asarray(capture.root_pose[0], dtype=np.float64))
 
 
 OUTPUT_FILES = ("interaction.npz", "summary.json", "compliance_events.png")
@@ -241,6 +244,8 @@ def write_interaction(result: CaptureEstimate, out) -> list[Path]:
                 source=np.array(result.source or ""))
     if result.truth is not None:
         data["truth_compliance"] = result.truth
+    if result.root_origin is not None:
+        data["root_origin"] = result.root_origin  # the world root pose the root coordinates are relative to
     buf = io.BytesIO()
     np.savez_compressed(buf, **data)
     atomic_bytes(out / "interaction.npz", buf.getvalue())

@@ -30,8 +30,19 @@ Generalized coordinates (6 + D) are those of ``torchhand.hand.dynamics.point_jac
 Choices the paper leaves open (design note §3): ``pyramid_m = 4`` by default, because an inscribed 2m-gon
 holds only mu cos(pi / 2m) in its worst direction, 0.866 mu at m = 3, below the 0.9 mu imminent-slip threshold of
 §8.1, while m = 4 holds 0.924 mu; h = 1/120 s; plane contacts are hand-plane rows with the hand's G block and
-U_phi = 0 (an extension; object-plane contacts are not modelled, so an object under gravity must be held).
-Joint limits are ignored (§8.3).
+U_phi = 0 (an extension). Object-plane contacts (an extension, design note §3 item 12): when the object has
+support points (:attr:`StepObject.support`) and there is a plane, each support point is a slot whose first body is
+the object and whose counterpart is the rigid plane: G block 0, J rows 0, and the object's rigid-body terms with the
+sign of the force the object receives. With sign s_i = -1 for a hand-object slot (the object receives -f_i) and
+s_i = +1 for an object-plane slot (it receives +f_i), every object slot moves by p_i = u_i + h^2 Gamma_i Ad M^-1
+Ad^T sum_j s_j Gamma_j^T f_j, and the relative motion of the slot's first body is du_i = (hand motion) + s_i p_i;
+so Eq. 10 holds with U_phi -> S U_phi S and u_phi -> -S u_phi, S = diag(s_i I3). An object then rests on the table
+(its weight carried by those slots) and is lifted when the hand's forces take it over. Joint limits are ignored
+(§8.3).
+
+Batched variants: :class:`StepObject` may carry one mass and one hand-object friction coefficient per rollout
+(``masses``, ``mus``; the inertia scales with the mass), so that B rollouts of different objects share one batched
+LCP.
 """
 
 from __future__ import annotations
@@ -49,7 +60,7 @@ from torchhand.kernels.status import SolverStatus
 from ..conventions import check_tensor
 from ..errors import InputValueError
 from ..lemke import lemke
-from ._contacts import BODY_OBJECT, Contacts, TablePlane, find_contacts
+from ._contacts import BODY_OBJECT, BODY_OBJECT_ENV, Contacts, TablePlane, find_contacts
 
 __all__ = ["StepObject", "StepSettings", "StepState", "StepReport", "TablePlane", "Contacts", "initial_state",
            "quasi_static_step", "root_displacement", "displace_root", "SOLVERS"]
@@ -65,6 +76,10 @@ class StepObject:
              (``SDFGrid.from_mesh`` builds float32: ``.to(dtype=torch.float64)`` for float64 rollouts)
     mass:    kg; com: centre of mass, (3,), object frame, metres; inertia: about the com, (3, 3), object axes, kg m^2
     mu:      friction coefficient with the hand
+    support: points the object can rest on, (P, 3), object frame, metres (``support_points`` of its mesh), or None
+             (no object-plane contacts)
+    masses:  one mass per rollout, (B,) floats, kg, or None (``mass`` for all); the inertia scales by masses / mass
+    mus:     one hand-object friction coefficient per rollout, (B,) floats, or None (``mu`` for all)
     """
 
     sdf: object
@@ -72,8 +87,21 @@ class StepObject:
     com: tuple
     inertia: tuple
     mu: float = 1.0
+    support: torch.Tensor | None = None
+    masses: tuple | None = None
+    mus: tuple | None = None
 
     def __post_init__(self):
+        for name in ("masses", "mus"):
+            v = getattr(self, name)
+            if v is not None:
+                v = tuple(float(x) for x in v)
+                if not v or not all(x >= 0 for x in v) or (name == "masses" and not all(x > 0 for x in v)):
+                    raise InputValueError(f"{name}: expected positive values per rollout, got {v}")
+                object.__setattr__(self, name, v)
+        if self.support is not None and (not isinstance(self.support, torch.Tensor) or self.support.dim() != 2
+                                         or self.support.shape[1] != 3):
+            raise InputValueError(f"support: expected a (P, 3) tensor, got {getattr(self.support, 'shape', None)}")
         com = np.asarray(self.com, dtype=np.float64)
         I = np.asarray(self.inertia, dtype=np.float64)
         if com.shape != (3,) or I.shape != (3, 3):
@@ -84,9 +112,26 @@ class StepObject:
         object.__setattr__(self, "inertia", tuple(map(tuple, I.tolist())))
 
     @classmethod
-    def from_rigid(cls, obj, sdf, mu: float = 1.0) -> "StepObject":
-        """From a :class:`~torchhand.objects.RigidObject` and its grid."""
-        return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu)
+    def from_rigid(cls, obj, sdf, mu: float = 1.0, *, support: torch.Tensor | None = None,
+                   masses=None, mus=None) -> "StepObject":
+        """From a :class:`~torchhand.objects.RigidObject` and its grid (support, masses, mus: see the fields)."""
+        return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu, support, masses, mus)
+
+    def mass_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
+        """Masses, (B,), kg."""
+        return self._per_rollout(self.masses, self.mass, "masses", B, like)
+
+    def mu_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
+        """Hand-object friction coefficients, (B,)."""
+        return self._per_rollout(self.mus, self.mu, "mus", B, like)
+
+    @staticmethod
+    def _per_rollout(values, default, name, B, like):
+        if values is None:
+            return like.new_full((B,), float(default))
+        if len(values) != B:
+            raise InputValueError(f"StepObject.{name}: {len(values)} values for {B} rollouts")
+        return torch.tensor(values, dtype=like.dtype, device=like.device)
 
     def body_frame(self, object_pose: torch.Tensor) -> torch.Tensor:
         """E_wb = T_world_object @ T(com): the body frame at the centre of mass with the object's axes, (B, 4, 4)."""
@@ -95,11 +140,13 @@ class StepObject:
         return object_pose @ T
 
     def spatial_inertia(self, B: int, like: torch.Tensor) -> torch.Tensor:
-        """M = diag(I_com, m I3), (B, 6, 6), kg m^2 / kg."""
+        """M = diag(I_com, m I3), (B, 6, 6), kg m^2 / kg (per rollout with ``masses``)."""
         M = torch.zeros(6, 6, dtype=like.dtype, device=like.device)
         M[:3, :3] = torch.tensor(self.inertia, dtype=like.dtype, device=like.device)
         M[3:, 3:] = self.mass * torch.eye(3, dtype=like.dtype, device=like.device)
-        return M.expand(B, 6, 6)
+        if self.masses is None:
+            return M.expand(B, 6, 6)
+        return M * (self.mass_per_rollout(B, like) / self.mass)[:, None, None]
 
 
 @dataclass(frozen=True)
@@ -112,7 +159,11 @@ class StepSettings:
     solver (None: its per-dtype defaults); lemke_tol: Lemke's tolerance on the same residual (absolute: the LCP's
     F and E blocks have unit entries); 1e-7 m / N accepts the round-off of the final basis solve on problems whose
     A = D^T (G - U_phi) D is far from full rank (planar fingers, many contacts); geometry: plane contacts from
-    "samples" or exact "capsules"
+    "samples" or exact "capsules"; env_compliance: compliance of the object-plane contacts, m/N (1e-6: a 3 N box
+    sinks by 0.75 um per corner). Deviation: object-plane slots are quasi-rigid (normal and tangential
+    displacement eps f^{k+1} added to nu, as in the elastic contact of Pauly et al. 2004 the paper builds on),
+    which makes the force distribution over several resting corners unique and the LCP well conditioned for
+    Lemke and PGS (with eps = 0 several corners give a rank-deficient A); 0 gives exactly rigid rows
     """
 
     h: float = 1.0 / 120.0
@@ -124,6 +175,7 @@ class StepSettings:
     pgs_tol: float | None = None
     lemke_tol: float = 1e-7
     geometry: str = "samples"
+    env_compliance: float = 1e-6
 
     def __post_init__(self):
         if not self.h > 0:
@@ -134,6 +186,8 @@ class StepSettings:
             raise InputValueError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
         if not self.margin >= 0:
             raise InputValueError(f"margin: expected >= 0 metres, got {self.margin}")
+        if not self.env_compliance >= 0:
+            raise InputValueError(f"env_compliance: expected >= 0 m/N, got {self.env_compliance}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,7 +200,8 @@ class StepState:
     root_r:      reference root pose, (B, 4, 4), world
     object_pose: T_world_object E, (B, 4, 4), world (identity when there is no object)
     phi:         object body twist (omega, v) at its centre of mass, object axes, (B, 6), rad/s and m/s
-    forces:      f^k per slot, on the hand, (B, N, 3), world, newtons (0 on inactive slots)
+    forces:      f^k per slot, on the hand (on the object for object-plane slots), (B, N, 3), world, newtons
+                 (0 on inactive slots)
     beta:        pyramid coordinates of f^k, (B, N, K), newtons (warm start of the batched solver)
     contacts:    :class:`Contacts` at this configuration
     theta_err:   theta_err^k, (B, 6 + D), radians (metres for root translations)
@@ -219,7 +274,7 @@ def displace_root(root_r: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
 def _contacts(hand, q, root, object_pose, obj, env, settings) -> Contacts:
     return find_contacts(hand, q, root, sdf=None if obj is None else obj.sdf,
                          object_pose=object_pose if obj is not None else None, plane=env, margin=settings.margin,
-                         geometry=settings.geometry)
+                         geometry=settings.geometry, object_points=None if obj is None else obj.support)
 
 
 def _generalized_force(J: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
@@ -335,6 +390,10 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
         raise InputValueError(f"state.beta has {state.beta.shape[-1]} directions; settings.pyramid_m gives {K}")
     h = settings.h
     on_obj = c.mask & (c.body == BODY_OBJECT)
+    on_tab = c.mask & (c.body == BODY_OBJECT_ENV)
+    on_body = on_obj | on_tab
+    sign = torch.where(c.body == BODY_OBJECT_ENV, 1.0, -1.0).to(like)            # force the object receives: s_i f_i
+    S3 = sign.repeat_interleave(3)
     # steps 2-7
     dth = torch.cat([root_displacement(root_r_next, state.root_r), theta_r_next - state.theta_r], -1)
     dth = dth + state.theta_err
@@ -344,19 +403,25 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
         E_wb = obj.body_frame(state.object_pose)
         Mb = obj.spatial_inertia(B, like)
         g = torch.tensor(settings.gravity, dtype=like.dtype, device=like.device)
-        w_ext = torch.cat([like.new_zeros(B, 3), obj.mass * (E_wb[:, :3, :3].transpose(1, 2) @ g)], -1)
-        U, u = rigid_body_terms(E_wb, state.phi, Mb, c.points, h, w_ext, on_obj)
-        mu_obj = obj.mu
+        mass = obj.mass_per_rollout(B, like)
+        w_ext = torch.cat([like.new_zeros(B, 3), mass[:, None] * (E_wb[:, :3, :3].transpose(1, 2) @ g)], -1)
+        U, u = rigid_body_terms(E_wb, state.phi, Mb, c.points, h, w_ext, on_body)
+        # hand-object slots: the object receives -f (the paper's U_phi, u_phi); object-plane slots: +f
+        U = U * S3[:, None] * S3[None, :]
+        u = -u * S3
+        mu_obj = obj.mu_per_rollout(B, like)[:, None]
     else:
         U, u = torch.zeros_like(G), like.new_zeros(B, 3 * N)
-        mu_obj = 0.0
-    mu_env = env.mu if env is not None else 0.0
-    mu = torch.where(c.body == BODY_OBJECT, mu_obj, mu_env).to(like).expand(B, N)
+        mu_obj = like.new_zeros(B, 1)
+    mu_env = like.new_full((B, 1), env.mu if env is not None else 0.0)
+    mu = torch.where(c.body == BODY_OBJECT, mu_obj, mu_env)
     fk = state.forces.reshape(B, 3 * N)
     sp = kry_pai_s_prime(Dfull, c.separation, G=G, f_k=fk, J=c.J, dtheta_r=dth, u_phi=u)
     order, mask_c = _compact(c.mask)
     Dc = Dfull.gather(1, order[..., None, None].expand(-1, -1, 3, K))
-    lcp = build_kry_pai_lcp(Dc, _gather_blocks(G, order), _gather_blocks(U, order),
+    # quasi-rigid object-plane slots: nu gains eps f^{k+1} (G holds no f^k term for them, so s' is unchanged)
+    G_lcp = G + torch.diag_embed(settings.env_compliance * on_tab.repeat_interleave(3, dim=1).to(like))
+    lcp = build_kry_pai_lcp(Dc, _gather_blocks(G_lcp, order), _gather_blocks(U, order),
                             sp.gather(1, order[..., None].expand(-1, -1, K)), mu.gather(1, order), mask=mask_c)
     beta0 = torch.where(mask_c[..., None], state.beta.gather(1, order[..., None].expand(-1, -1, K)), 0.0)
     beta_c, status, residual, iters = _solve(lcp, mask_c, beta0, settings)
@@ -376,7 +441,7 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
     beta = torch.where(ok[:, None, None], beta, state.beta)
     # step 8
     if obj is not None:
-        body = integrate_object(E_wb, state.phi, Mb, c.points, f_next, h, w_ext, on_obj)
+        body = integrate_object(E_wb, state.phi, Mb, c.points, -sign[:, None] * f_next, h, w_ext, on_body)
         Tinv = torch.eye(4, dtype=like.dtype, device=like.device)
         Tinv[:3, 3] = -torch.tensor(obj.com, dtype=like.dtype, device=like.device)
         phi_next, pose_next = body.phi, body.E @ Tinv
@@ -386,6 +451,7 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
     q_next = theta_r_next + delta[:, 6:]
     root_next = displace_root(root_r_next, delta[:, :6])
     du = ((G @ (f_next.reshape(B, -1) - fk)[..., None]).squeeze(-1) + (c.J @ dth[..., None]).squeeze(-1)
+          + settings.env_compliance * on_tab.repeat_interleave(3, dim=1).to(like) * f_next.reshape(B, -1)
           - (U @ f_next.reshape(B, -1, 1)).squeeze(-1) - u).reshape(B, N, 3)
     # step 9
     c_new = _contacts(hand, q_next, root_next, pose_next, obj, env, settings)

@@ -243,6 +243,10 @@ class ResultWriter:
     def finish(self, result: SynthesisResult, *, threads: int | None = None) -> Path:
         """Write the final ``stats.json`` and, when replacing, swap the new directory in. Returns ``out``."""
         _atomic_json(self.stage / "stats.json", stats_dict(result, threads=threads))
+        return self.swap_in()
+
+    def swap_in(self) -> Path:
+        """Release the lock and, when replacing an earlier result, swap the new directory in. Returns ``out``."""
         self._unlock()
         if self.stage != self.out:
             old = self.out.with_name(self.out.name + f".old-{os.getpid()}")

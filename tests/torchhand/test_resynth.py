@@ -1,0 +1,285 @@
+"""Resynthesis of an interaction trajectory (Kry & Pai §7-8; torchhand/interaction/resynth.py, grip.py and the
+object-table slots of step.py): an object resting on the table, a pinch lifting a light box, a heavier box with and
+without delayed grip adjustment, the command line and its result directory under the independent checker, bad
+inputs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from .test_step import F64, _pose, box_grid, hand_from_mjcf, pinch_xml
+from torchhand.kernels.status import SolverStatus
+
+from torchhand.interaction._contacts import BODY_OBJECT_ENV, support_points
+from torchhand.interaction.grip import GripSettings
+from torchhand.interaction.resynth import Interaction, load_interaction, object_slip, save_interaction, simulate
+from torchhand.interaction.step import StepObject, StepSettings, TablePlane, initial_state, quasi_static_step
+
+CONVERGED = int(SolverStatus.CONVERGED)
+HALF = (0.02, 0.02, 0.03)          # 4 x 4 x 6 cm box
+ROOT_Z = 0.12                      # pinch palm height: fingertips 4 cm above the table, beside the box
+C_PINCH = [0.05] * 3 + [1e-4] * 3 + [1.0, 2.0, 1.0, 2.0]
+SQUEEZE = np.array([1.0, 0.5, 1.0, 0.5])
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# builders (also used by scripts/demo_resynth.py)
+# ----------------------------------------------------------------------------------------------------------------
+def box_mesh(half=HALF) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=2 * np.asarray(half, dtype=np.float64))
+
+
+def box_step_object(masses, half=HALF, mu: float = 0.8) -> StepObject:
+    """A free box with its support points; one mass per rollout."""
+    hx, hy, hz = half
+    m0 = float(masses[0])
+    inertia = m0 / 3 * np.diag([hy * hy + hz * hz, hx * hx + hz * hz, hx * hx + hy * hy])
+    return StepObject(box_grid(half), m0, (0.0, 0.0, 0.0), inertia, mu, support=support_points(box_mesh(half).vertices),
+                      masses=tuple(masses))
+
+
+def pinch_reference(fps: float = 120.0, squeeze: float = 0.25, lift: float = 0.05, duration: float = 1.2):
+    """Close the pinch over 0.3 s, hold 0.1 s, lift the root by ``lift`` over 0.5 s (smoothstep), hold.
+    Returns (theta_r (T, 4), root_r (T, 4, 4), lift start frame)."""
+    t = np.arange(round(duration * fps) + 1) / fps
+    close = np.clip(t / 0.3, 0, 1)
+    s = np.clip((t - 0.4) / 0.5, 0, 1)
+    s = s * s * (3 - 2 * s)
+    theta_r = squeeze * close[:, None] * SQUEEZE
+    root = np.tile(np.eye(4), (len(t), 1, 1))
+    root[:, 2, 3] = ROOT_Z + lift * s
+    return theta_r, root, round(0.4 * fps)
+
+
+def run_pinch(masses, grip: str = "none", fps: float = 120.0, solver: str = "lemke", **reference):
+    """B pinch rollouts on the 4 x 4 x 6 cm box resting on the table at z = 0. Returns (record, lift frame)."""
+    B = len(masses)
+    theta_r, root, start = pinch_reference(fps, **reference)
+    T = theta_r.shape[0]
+    hand = hand_from_mjcf(pinch_xml())
+    settings = StepSettings(h=1 / fps, solver=solver, geometry="capsules", pgs_max_iters=50)
+    th = torch.from_numpy(theta_r).expand(B, T, 4).contiguous()
+    rr = torch.from_numpy(root).expand(B, T, 4, 4).contiguous()
+    C = torch.tensor(C_PINCH, dtype=F64).expand(B, T, 10).contiguous()
+    rec = simulate(hand, box_step_object(masses), TablePlane(offset=0.0, mu=0.5), th, rr, C, _pose(z=HALF[2], B=B),
+                   settings=settings, grip=GripSettings(grip))
+    return rec, start
+
+
+def pinch_files(directory, *, half=HALF, mass: float = 0.05, fps: float = 60.0, lift: float = 0.05):
+    """A scene directory (the pinch as an MJCF hand with a mount sidecar, the box on a table at z = 0) and an
+    interaction.npz (source "constructed"); returns (scene dir, interaction path)."""
+    from torchhand.objects import RigidObject
+    from torchhand.scene import Environment, HandTrack, Scene
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "pinch.xml").write_text(pinch_xml())
+    (d / "pinch.torchhand.toml").write_text("[mount]\norigin = [0.0, 0.0, 0.0]\nx_axis = [0.0, 0.0, -1.0]\n"
+                                            "y_axis = [0.0, 1.0, 0.0]\n")
+    theta_r, root, _ = pinch_reference(fps, lift=lift)
+    T = theta_r.shape[0]
+    hand_frame = np.eye(4)
+    hand_frame[:3, :3] = [[0, 0, 1.0], [0, 1, 0], [-1, 0, 0]]      # hand x = model -z (the fingers hang down)
+    wrist = root @ hand_frame
+    obj = RigidObject.from_trimesh(box_mesh(half), mass=mass, name="box")
+    pose = np.tile(np.eye(4), (T, 1, 1))
+    pose[:, 2, 3] = half[2]
+    scene = Scene(name="pinch-box", object=obj, object_pose=torch.from_numpy(pose), fps=fps,
+                  hands=(HandTrack(side="right", wrist_pose=torch.from_numpy(wrist), model=str(d / "pinch.xml")),),
+                  friction=0.8, environment=Environment(table=True, table_height=0.0, friction=0.5))
+    scene_dir = scene.export(d / "scene")
+    C = np.tile(np.asarray(C_PINCH), (T, 1))
+    root_c = np.concatenate([np.zeros((T, 3)), root[:, :3, 3] - root[0, :3, 3]], 1)
+    inter = Interaction(fps, ("left_j0", "left_j1", "right_j0", "right_j1"), C, theta_r, root_c, wrist[0],
+                        "constructed")
+    return scene_dir, save_interaction(inter, d / "interaction.npz")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# object-table contacts
+# ----------------------------------------------------------------------------------------------------------------
+def test_support_points_of_a_box_are_its_corners():
+    pts = support_points(box_mesh().vertices).numpy()
+    assert pts.shape == (8, 3)
+    np.testing.assert_allclose(np.abs(pts), np.broadcast_to(HALF, (8, 3)))
+    assert support_points(np.random.default_rng(0).normal(size=(200, 3)), max_points=6).shape == (6, 3)
+
+
+@pytest.mark.parametrize("solver", ["lemke", "auto"])
+def test_object_rests_on_the_table(solver):
+    """Hand far above; the box's weight is carried by its four bottom corners: balance within 1 % of m g."""
+    B, mass = 2, 0.05
+    obj = box_step_object([mass, 2 * mass])
+    env = TablePlane(offset=0.0, mu=0.5)
+    hand = hand_from_mjcf(pinch_xml())
+    settings = StepSettings(solver=solver, geometry="capsules", pgs_max_iters=50)
+    state = initial_state(hand, torch.zeros(B, 4, dtype=F64), _pose(z=0.3, B=B), object_pose=_pose(z=HALF[2], B=B),
+                          obj=obj, env=env, settings=settings)
+    C = torch.tensor(C_PINCH, dtype=F64).expand(B, 10)
+    for _ in range(10):
+        state, rep = quasi_static_step(state, hand, state.theta_r, state.root_r, C, obj, env, settings)
+        assert (rep.status == CONVERGED).all()
+    on_table = state.contacts.body == BODY_OBJECT_ENV
+    assert (rep.mask[:, on_table].sum(1) == 4).all()
+    f = torch.einsum("bnrk,bnk->bnr", rep.D, rep.beta)[:, on_table].sum(1)
+    weight = 9.81 * torch.tensor([mass, 2 * mass], dtype=F64)
+    assert torch.allclose(f[:, 2], weight, rtol=1e-2)
+    assert (f[:, :2].abs() < 1e-2 * weight[:, None]).all()
+    assert (state.object_pose[:, :3, 3] - torch.tensor([0, 0, HALF[2]], dtype=F64)).abs().max() < 1e-6
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# lifting, slip and grip adjustment
+# ----------------------------------------------------------------------------------------------------------------
+def test_pinch_lifts_a_light_box():
+    rec, start = run_pinch([0.05])
+    pose, root = rec["object_pose"][0].numpy(), rec["root"][0].numpy()
+    assert int(rec["failed_step"][0]) == -1 and (rec["status"] == CONVERGED).all()
+    assert pose[-1, 2, 3] - pose[0, 2, 3] > 0.045                  # lifted with the root (5 cm)
+    assert object_slip(root, pose, np.zeros(3), start).max() < 0.002
+    assert rec["theta_err"].max() < 1e-2
+
+
+def test_batched_rollouts_match_single_ones():
+    """Two masses in one batch (PGS with Lemke for stragglers) against separate Lemke rollouts: same motion."""
+    both, _ = run_pinch([0.05, 0.2], solver="auto", duration=0.6)
+    for b, m in enumerate([0.05, 0.2]):
+        one, _ = run_pinch([m], duration=0.6)
+        np.testing.assert_allclose(both["object_pose"][b].numpy(), one["object_pose"][0].numpy(), atol=2e-4)
+
+
+def test_heavy_box_slips_less_with_delayed_grip():
+    """0.35 kg: without grip adjustment the pinch loses the box; with the 100 ms delayed response it holds it.
+    Grip events start at least 100 ms (12 steps at 120 Hz) after the slip onset."""
+    none, start = run_pinch([0.35])
+    delayed, _ = run_pinch([0.35], grip="delayed")
+    slip = {k: object_slip(r["root"][0].numpy(), r["object_pose"][0].numpy(), np.zeros(3), start).max()
+            for k, r in (("none", none), ("delayed", delayed))}
+    assert slip["none"] > 0.03 and slip["delayed"] < 0.5 * slip["none"]
+    assert delayed["object_pose"][0, -1, 2, 3] > HALF[2] + 0.02        # still in the air
+    onset = int(delayed["onset"][0])
+    frames = [k for _, k, _ in delayed["grip_events"]]
+    assert onset >= 0 and frames and min(frames) - onset >= 12
+    assert none["grip_events"] == []
+
+
+def test_imminent_grip_tightens_before_slip():
+    rec, start = run_pinch([0.35], grip="imminent")
+    frames = [k for _, k, _ in rec["grip_events"]]
+    assert frames and min(frames) == int(rec["onset"][0])           # acts at once
+    assert object_slip(rec["root"][0].numpy(), rec["object_pose"][0].numpy(), np.zeros(3), start).max() < 0.02
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# command line, result directory, checker
+# ----------------------------------------------------------------------------------------------------------------
+def test_cli_writes_a_result_the_checker_reads(tmp_path):
+    from torchhand.check import check_result
+    from torchhand.cli import main
+    from torchhand.result import load_result
+
+    scene_dir, inter = pinch_files(tmp_path / "in")
+    out = tmp_path / "out"
+    rc = main(["capture", "resynthesize", str(inter), "--scene", str(scene_dir), "--out", str(out),
+               "--mass", "0.05,0.35", "--grip", "delayed", "--solver", "lemke"])
+    assert rc == 0
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["method"] == "kry_pai" and stats["complete"] and stats["solutions"] == 2
+    res = load_result(out)
+    sol = np.load(out / "solutions" / "sol_000.npz")
+    for key in ("theta_r", "compliance", "slip_ratio", "lcp_status", "lcp_residual", "theta_err", "grip_events"):
+        assert key in sol.files
+    assert sol["slip_ratio"].shape == sol["contact_mask"].shape
+    assert res.solution(0).q.shape == (res.scene.T, 4)
+    report = check_result(out)
+    first = report.solutions[0]
+    # the light box (the scene's mass): penetration, contact gaps, cones and balance pass
+    for name in ("object_penetration_m", "table_penetration_m", "contact_object_m", "contact_hand_m",
+                 "cone_violation", "force_error"):
+        assert first.figures[name].ok, (name, first.figures[name])
+    assert first.figures["torque_error"].ok and report.solutions[0].passed
+    # Two checker assumptions that only a synthesis result meets:
+    # 1. it takes the object's mass from the scene (here the first rollout's, 0.05 kg), so the 0.35 kg rollout's
+    #    force and torque balance are judged against the wrong mass and fail;
+    # 2. ``distinct_deg`` wants every solution 2 degrees from the earlier ones (distinct search paths), while
+    #    rollout variants of one interaction share most of their motion.
+    second = report.solutions[1].figures
+    assert not second["force_error"].ok and not second["distinct_deg"].ok
+    for name in ("object_penetration_m", "contact_object_m", "contact_hand_m", "cone_violation"):
+        assert second[name].ok, (name, second[name])
+    # with the rollout's own mass, the checker's balance holds within 2 % of m g during the slip, < 1 % elsewhere
+    from torchhand.check.geometry import object_mesh
+    from torchhand.check.motion import balance_errors
+
+    f_err, _ = balance_errors(res.solution(1), object_mesh(res.scene.object.mesh, 0.35), 0.35,
+                              np.array([0.0, 0.0, -9.81]))
+    assert f_err.max() < 0.02 and np.median(f_err) < 1e-3
+
+
+def _cli(args) -> int:
+    from torchhand.cli import main
+
+    return main(["capture", "resynthesize", *args])
+
+
+def test_cli_bad_inputs(tmp_path, capsys):
+    scene_dir, inter = pinch_files(tmp_path / "in")
+    out = str(tmp_path / "out")
+    assert _cli([str(tmp_path / "missing.npz"), "--scene", str(scene_dir), "--out", out]) == 2
+    assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--mass", "0.1,abc"]) == 2
+    assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--mass", "-1"]) == 2
+    assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--dt", "0.5"]) == 2
+    assert _cli([str(inter), "--scene", "box-pickup", "--out", out]) == 2          # joints of another hand
+    (tmp_path / "file").write_text("x")
+    assert _cli([str(inter), "--scene", str(scene_dir), "--out", str(tmp_path / "file")]) == 2
+    bad = dict(np.load(inter))
+    bad["theta_r"] = bad["theta_r"].copy()
+    bad["theta_r"][3, 1] = np.nan
+    np.savez(tmp_path / "nan.npz", **bad)
+    assert _cli([str(tmp_path / "nan.npz"), "--scene", str(scene_dir), "--out", out]) == 2
+    err = capsys.readouterr().err
+    assert "frame 3" in err and "Traceback" not in err
+    assert not Path(out).exists() or not any(Path(out).iterdir())
+
+
+def test_load_interaction_roundtrip(tmp_path):
+    _, path = pinch_files(tmp_path)
+    inter = load_interaction(path)
+    assert inter.source == "constructed" and inter.C.shape == (inter.T, 10) and inter.root_origin.shape == (4, 4)
+
+
+def test_unsolved_lcp_stops_only_that_rollout(tmp_path, monkeypatch, capsys):
+    """A Lemke failure at step 5 of rollout 1 stops rollout 1 there; rollout 0 completes. When every rollout fails
+    the command exits 1 and stats.json names the step."""
+    import torchhand.interaction.step as step_module
+    from torchhand.cli import main
+
+    real = step_module.lemke
+    calls = {"n": 0}
+
+    def failing(M, q, **kw):
+        out = real(M, q, **kw)
+        calls["n"] += 1
+        if calls["n"] == 2 * 5 + 2:                          # step 5, rollout 1 (one call per rollout and step)
+            return out._replace(status=SolverStatus.UNBOUNDED)
+        return out
+
+    monkeypatch.setattr(step_module, "lemke", failing)
+    rec, _ = run_pinch([0.05, 0.05], duration=0.2)
+    assert rec["failed_step"].tolist() == [-1, 5]
+
+    monkeypatch.setattr(step_module, "lemke", lambda M, q, **kw: real(M, q, **kw)._replace(
+        status=SolverStatus.UNBOUNDED))
+    scene_dir, inter = pinch_files(tmp_path / "in")
+    out = tmp_path / "out"
+    assert main(["capture", "resynthesize", str(inter), "--scene", str(scene_dir), "--out", str(out),
+                 "--solver", "lemke"]) == 1
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["solutions"] == 0 and stats["rollouts"][0]["failed_step"] == 0
+    assert "stopped at step 0 (UNBOUNDED)" in capsys.readouterr().err
