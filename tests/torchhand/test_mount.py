@@ -186,6 +186,54 @@ def test_checker_measures_a_robot_hand_on_its_mjcf_geoms(allegro_cube, tmp_path)
     assert fig.where.split("/")[1] in {"palm", "ff_base", "mf_base", "rf_base", "th_base"}
 
 
+def test_checker_finger_and_contact_distances_on_mjcf_geoms(allegro_cube):
+    """Finger-finger penetration and contact-hand distances of a robot hand on its MJCF geoms posed by MuJoCo:
+    on random poses within the limits, a pair of fingers overlaps exactly where MuJoCo's own mj_geomDistance says
+    so (deeper than 0.5 mm by either), and a point 5 mm off a distal box geom's face is 5 mm from the link."""
+    mujoco = pytest.importorskip("mujoco")
+    from torchhand.check.mjcf_geometry import geom_contact_gaps, geom_finger_depths
+    from torchhand.check.penetration import finger_pairs
+    from torchhand.result import load_result
+
+    res = load_result(allegro_cube)
+    hand, sol, xml = res.hand_models["right"], res.solution(0), allegro_cube / "hand.xml"
+    lim = hand.joint_limits.numpy().astype(np.float64)
+    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * np.random.default_rng(0).random((12, hand.num_joints))
+    root = np.repeat(sol.root_pose[:1], len(q), axis=0)
+    pairs = finger_pairs(hand)
+    ours = geom_finger_depths(xml, hand, q, root, pairs)
+    m = mujoco.MjModel.from_xml_path(str(xml))
+    d = mujoco.MjData(m)
+    body = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b): b for b in range(m.nbody)}
+    geoms = {li: [g for g in range(m.ngeom) if m.geom_bodyid[g] == body[n] and (m.geom_contype[g] or
+                                                                                m.geom_conaffinity[g])]
+             for li, n in enumerate(hand.link_names)}
+    theirs = np.zeros_like(ours)
+    from scipy.spatial.transform import Rotation
+
+    xyzw = Rotation.from_matrix(root[0, :3, :3]).as_quat()
+    for t in range(len(q)):
+        d.qpos[:] = np.concatenate([root[0, :3, 3], [xyzw[3], *xyzw[:3]], q[t]])
+        mujoco.mj_kinematics(m, d)
+        for k, (a, b) in enumerate(pairs):
+            theirs[t, k] = -min(mujoco.mj_geomDistance(m, d, x, y, 0.05, None) for x in geoms[a] for y in geoms[b])
+    deep = (ours > 5e-4) | (theirs > 5e-4)
+    assert deep.sum() >= 5, deep.sum()                               # the random poses do cross fingers
+    assert np.array_equal(ours[deep] > 0, theirs[deep] > 0)
+    assert (ours[theirs > 0.004] > 0.002).all()                       # what MuJoCo finds deep fails the 2 mm check
+    # contact-hand distance: 5 mm off the +x face of ff_distal's box, at frame 0
+    li = hand.link_names.index("ff_distal")
+    g = geoms[li][0]
+    assert m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX
+    d.qpos[:] = np.concatenate([sol.root_pose[0, :3, 3], [*np.roll(Rotation.from_matrix(
+        sol.root_pose[0, :3, :3]).as_quat(), 1)], sol.q[0]])
+    mujoco.mj_kinematics(m, d)
+    R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
+    point = p + R[:, 0] * (m.geom_size[g][0] + 0.005)
+    gap = geom_contact_gaps(xml, hand, sol.q, sol.root_pose, np.array([0]), np.array([li]), point[None])
+    np.testing.assert_allclose(gap, [0.005], atol=1e-6)
+
+
 def test_relaxed_rest_pose_of_a_robot_hand(tmp_path):
     """A sidecar's [rest] pose = "relaxed" puts each fingertip where the built-in hand rests (scaled by the hands'
     lengths), within the joint limits, the same every time; [rest] names joints; the default is the file's q = 0."""

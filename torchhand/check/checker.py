@@ -45,8 +45,8 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
         odd = capsule_notes(model, side)
         if odd and _has_mujoco():
             odd = [odd[0].replace("the checks use capsules fitted to it",
-                                  "object and table penetration are measured on its MJCF geoms posed by MuJoCo; "
-                                  "finger-finger and contact distances use capsules fitted to it")]
+                                  "object and table penetration, finger-finger penetration and contact-hand "
+                                  "distances are measured on its MJCF geoms posed by MuJoCo")]
         notes += odd
     if not obj.watertight:
         notes.append("the object's mesh is not watertight: mass properties from its convex hull, inside/outside "
@@ -94,7 +94,7 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
                                    sol.path)
     files = {hs.side: _hand_file(result, k, hs.side) for k, hs in enumerate(sol.hands)}
     fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits, files)
-    fig.update(_contact_figures(sol, result.scene, hands, obj, limits))
+    fig.update(_contact_figures(sol, result.scene, hands, obj, limits, files))
     q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier)
     fig.update(joint_figs)
     ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
@@ -153,17 +153,42 @@ def _penetration_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectM
             "hand_penetration_m", d.reshape(d.shape[0], -1), limits["hand_penetration_m"],
             lambda t, x: f"{h1.link(x // L2)} - {h2.link(x % L2)}")
     pairs = [(h, finger_pairs(h.model)) for h in hl]
-    values, pair_labels = _columns([finger_depth(h, p) for h, p in pairs],
+    values, pair_labels = _columns([_finger_depth(sol, h, p, (files or {}).get(h.side)) for h, p in pairs],
                                    [[f"{h.link(a)} - {h.link(b)}" for a, b in p] for h, p in pairs])
     fig["finger_penetration_m"] = Figure.worst("finger_penetration_m", values, limits["finger_penetration_m"],
                                                lambda t, x: pair_labels[x])
     return fig
 
 
-def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: ObjectMesh, limits: dict) -> dict:
+def _finger_depth(sol: Solution, h: PosedHand, pairs: np.ndarray, xml: Path | None) -> np.ndarray:
+    """Finger-finger overlap (T, Q): on the MJCF geoms by MuJoCo for a hand whose geometry is not all capsules
+    (:mod:`.mjcf_geometry`), on the capsules otherwise."""
+    if xml is not None and len(pairs) and capsule_notes(h.model, h.side):
+        from .mjcf_geometry import geom_finger_depths
+
+        got = geom_finger_depths(xml, h.model, h.q, sol.hand(h.side).root_pose, pairs)
+        if got is not None:
+            return got
+    return finger_depth(h, pairs)
+
+
+def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: ObjectMesh, limits: dict,
+                     files: dict | None = None) -> dict:
     first_side = next(iter(hands))
     slots = contact_slots(hands, sol.contact_link_name, sol.contact_link, sol.contact_mask, sol.path)
     gap_obj, gap_hand, closest, tri = contact_gaps(hands, slots, sol.contact_point, obj, sol.object_pose)
+    t_idx, k_idx, sides, links = slots
+    for side, h in hands.items():  # robot hands: the gap to the link's MJCF geoms posed by MuJoCo
+        xml = (files or {}).get(side)
+        sel = np.array([s == side for s in sides], dtype=bool)
+        if xml is None or not sel.any() or not capsule_notes(h.model, side):
+            continue
+        from .mjcf_geometry import geom_contact_gaps
+
+        got = geom_contact_gaps(xml, h.model, h.q, sol.hand(side).root_pose, t_idx[sel], links[sel],
+                                sol.contact_point[t_idx[sel], k_idx[sel]])
+        if got is not None:
+            gap_hand[t_idx[sel], k_idx[sel]] = got
 
     def where(t, k):
         name = sol.contact_link_name[int(sol.contact_link[t, k])]

@@ -14,7 +14,14 @@ whichever is larger; 0 when nothing is inside. Exact where the deepest point is 
 sample; an edge of one crossing a face of the other between samples is under-measured by at most about
 ``spacing / 2`` of depth. Table: how far the lowest surface point lies below the plane.
 
-Needs ``mujoco`` (a test extra); :func:`geom_depths` returns None without it and the checker keeps the capsules.
+Finger-finger depth (:func:`geom_finger_depths`): for each pair of links of different fingers (the pairs of
+:func:`~.penetration.finger_pairs`), the deepest surface point of one link's geoms inside the other's (the same
+measure as the object's, with a 1 mm sample).
+
+Contact-hand gap (:func:`geom_contact_gaps`): the distance of each contact point to the surface of its link's geoms
+(the nearest of them; trimesh's closest point on the geom's triangle mesh, in the geom's frame).
+
+Needs ``mujoco`` (a test extra); these functions return None without it and the checker keeps the capsules.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-__all__ = ["geom_depths"]
+__all__ = ["geom_depths", "geom_finger_depths", "geom_contact_gaps"]
 
 _TYPES = {2: "sphere", 3: "capsule", 5: "cylinder", 6: "box", 7: "mesh"}     # mjtGeom values
 
@@ -41,49 +48,19 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
         (object depth (T, L), table depth (T, L) or None), metres, NaN for links without geoms; or None when
         MuJoCo is not installed.
     """
-    try:
-        import mujoco
-    except ImportError:
+    posed = _PosedGeoms.load(xml_path, model, spacing)
+    if posed is None:
         return None
-    from torchhand.hand._link_geometry import geom_trimesh
-
-    m = mujoco.MjModel.from_xml_path(str(xml_path))
-    d = mujoco.MjData(m)
     T, L = q.shape[0], model.num_links
-    link_of_body = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b): b for b in range(m.nbody)}
-    body_link = {link_of_body[n]: i for i, n in enumerate(model.link_names) if n in link_of_body}
-    free = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
-    adr = [m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in model.joint_names]
-    geoms = []                                     # (geom id, link, surface points (P, 3), mesh in geom frame)
-    for g in range(m.ngeom):
-        kind = _TYPES.get(int(m.geom_type[g]))
-        link = body_link.get(int(m.geom_bodyid[g]))
-        if kind is None or link is None or (m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0):
-            continue
-        mesh = None
-        if kind == "mesh":
-            k = int(m.geom_dataid[g])
-            v0, nv = int(m.mesh_vertadr[k]), int(m.mesh_vertnum[k])
-            f0, nf = int(m.mesh_faceadr[k]), int(m.mesh_facenum[k])
-            mesh = (np.asarray(m.mesh_vert[v0:v0 + nv], dtype=np.float64), np.asarray(m.mesh_face[f0:f0 + nf]))
-        tm = geom_trimesh(kind, np.asarray(m.geom_size[g], dtype=np.float64), mesh)
-        count = max(int(tm.area / spacing ** 2), 1)
-        pts = np.concatenate([np.asarray(tm.vertices), trimesh.sample.sample_surface_even(tm, count, seed=0)[0]])
-        geoms.append((g, link, pts, tm))
     obj_depth = np.full((T, L), np.nan)
     tab_depth = np.full((T, L), np.nan) if table_height is not None else None
     verts = np.asarray(obj_mesh.vertices, dtype=np.float64)
+    d = posed.data
     for t in range(T):
-        d.qpos[:] = m.qpos0
-        if free:
-            a = m.jnt_qposadr[free[0]]
-            d.qpos[a:a + 3] = root[t, :3, 3]
-            d.qpos[a + 3:a + 7] = _quat_wxyz(root[t, :3, :3])
-        d.qpos[adr] = q[t]
-        mujoco.mj_kinematics(m, d)
+        posed.pose(q[t], root[t])
         inv = np.linalg.inv(object_pose[t])
         world_verts = verts @ object_pose[t, :3, :3].T + object_pose[t, :3, 3]
-        for g, link, pts, tm in geoms:
+        for g, link, pts, tm in posed.geoms:
             R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
             world = pts @ R.T + p
             local = world @ inv[:3, :3].T + inv[:3, 3]
@@ -98,6 +75,134 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
                 tab_depth[t, link] = np.fmax(tab_depth[t, link], table_height - float(world[:, 2].min()))
     return obj_depth, tab_depth
 
+
+
+class _PosedGeoms:
+    """A hand file in MuJoCo with its collision geoms per link, posed frame by frame by ``mj_kinematics``."""
+
+    def __init__(self, mujoco, m, model, geoms: list, adr: list, free: list):
+        self.mujoco, self.m, self.data = mujoco, m, mujoco.MjData(m)
+        self.geoms = geoms                        # (geom id, link, surface points (P, 3), trimesh) in geom frames
+        self.by_link: dict[int, list] = {}
+        for g in geoms:
+            self.by_link.setdefault(g[1], []).append(g)
+        self.adr, self.free = adr, free
+
+    @classmethod
+    def load(cls, xml_path, model, spacing: float | None = 0.002):
+        """None when MuJoCo is not installed. ``spacing``: of the surface samples (None: the vertices only)."""
+        try:
+            import mujoco
+        except ImportError:
+            return None
+        from torchhand.hand._link_geometry import geom_trimesh
+
+        m = mujoco.MjModel.from_xml_path(str(xml_path))
+        link_of_body = {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b): b for b in range(m.nbody)}
+        body_link = {link_of_body[n]: i for i, n in enumerate(model.link_names) if n in link_of_body}
+        free = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+        adr = [m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in model.joint_names]
+        geoms = []
+        for g in range(m.ngeom):
+            kind = _TYPES.get(int(m.geom_type[g]))
+            link = body_link.get(int(m.geom_bodyid[g]))
+            if kind is None or link is None or (m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0):
+                continue
+            mesh = None
+            if kind == "mesh":
+                k = int(m.geom_dataid[g])
+                v0, nv = int(m.mesh_vertadr[k]), int(m.mesh_vertnum[k])
+                f0, nf = int(m.mesh_faceadr[k]), int(m.mesh_facenum[k])
+                mesh = (np.asarray(m.mesh_vert[v0:v0 + nv], dtype=np.float64),
+                        np.asarray(m.mesh_face[f0:f0 + nf]))
+            tm = geom_trimesh(kind, np.asarray(m.geom_size[g], dtype=np.float64), mesh)
+            pts = np.asarray(tm.vertices)
+            if spacing is not None:
+                count = max(int(tm.area / spacing ** 2), 1)
+                pts = np.concatenate([pts, trimesh.sample.sample_surface_even(tm, count, seed=0)[0]])
+            geoms.append((g, link, pts, tm))
+        return cls(mujoco, m, model, geoms, adr, free)
+
+    def pose(self, q: np.ndarray, root: np.ndarray) -> None:
+        """Pose every geom: joint angles q (D,) radians in the model's joint order, root (4, 4)."""
+        m, d = self.m, self.data
+        d.qpos[:] = m.qpos0
+        if self.free:
+            a = m.jnt_qposadr[self.free[0]]
+            d.qpos[a:a + 3] = root[:3, 3]
+            d.qpos[a + 3:a + 7] = _quat_wxyz(root[:3, :3])
+        d.qpos[self.adr] = q
+        self.mujoco.mj_kinematics(m, d)
+
+
+def geom_finger_depths(xml_path, model, q: np.ndarray, root: np.ndarray, pairs: np.ndarray,
+                       spacing: float = 0.001):
+    """Overlap of link pairs of different fingers on their MJCF geoms posed by MuJoCo.
+
+    For two geoms whose bounding spheres overlap: the largest signed distance (trimesh, positive inside) of either
+    geom's surface points (vertices and an even ``spacing`` sample) into the other geom; otherwise minus the gap
+    between the bounding spheres (a lower bound of the clearance). MuJoCo's own ``mj_geomDistance`` is not used for
+    the depth: on two boxes it reports half the overlap (MuJoCo 3.2.7).
+
+    Args:
+        xml_path, model, q (T, D), root (T, 4, 4): as in :func:`geom_depths`
+        pairs: (Q, 2) link indices (:func:`~.penetration.finger_pairs`)
+    Returns:
+        (T, Q) metres, positive: penetration, negative: clearance; NaN for a pair where a link has no geoms. None
+        when MuJoCo is not installed.
+    """
+    posed = _PosedGeoms.load(xml_path, model, spacing=spacing)
+    if posed is None:
+        return None
+    T, d = q.shape[0], posed.data
+    reach = {g[0]: float(np.linalg.norm(g[3].vertices, axis=1).max()) for g in posed.geoms}
+    out = np.full((T, len(pairs)), np.nan)
+    for t in range(T):
+        posed.pose(q[t], root[t])
+        R = {g[0]: d.geom_xmat[g[0]].reshape(3, 3).copy() for g in posed.geoms}
+        p = {g[0]: d.geom_xpos[g[0]].copy() for g in posed.geoms}
+        for k, (a, b) in enumerate(pairs):
+            ga, gb = posed.by_link.get(int(a), []), posed.by_link.get(int(b), [])
+            if not (ga and gb):
+                continue
+            worst = -np.inf
+            for x in ga:
+                for y in gb:
+                    gap = np.linalg.norm(p[x[0]] - p[y[0]]) - reach[x[0]] - reach[y[0]]
+                    if gap > 0:
+                        worst = max(worst, -gap)
+                        continue
+                    for u, v in ((x, y), (y, x)):       # u's surface points in v's frame, against v's mesh
+                        local = ((u[2] @ R[u[0]].T + p[u[0]]) - p[v[0]]) @ R[v[0]]
+                        worst = max(worst, float(trimesh.proximity.signed_distance(v[3], local).max()))
+            out[t, k] = worst
+    return out
+
+
+def geom_contact_gaps(xml_path, model, q: np.ndarray, root: np.ndarray, frame: np.ndarray, link: np.ndarray,
+                      points: np.ndarray):
+    """Distance of contact points to the surface of their link's MJCF geoms posed by MuJoCo.
+
+    Args:
+        xml_path, model, q (T, D), root (T, 4, 4): as in :func:`geom_depths`
+        frame: (N,) frame of each contact; link: (N,) its link index; points: (N, 3) world, metres
+    Returns:
+        (N,) metres, NaN for a link without geoms; None when MuJoCo is not installed.
+    """
+    posed = _PosedGeoms.load(xml_path, model, spacing=None)
+    if posed is None:
+        return None
+    out = np.full(len(frame), np.nan)
+    d = posed.data
+    for t in np.unique(frame):
+        posed.pose(q[t], root[t])
+        for j in np.nonzero(frame == t)[0]:
+            for g, _, _, tm in posed.by_link.get(int(link[j]), []):
+                R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
+                local = (points[j] - p) @ R
+                dist = float(trimesh.proximity.closest_point(tm, local[None])[1][0])
+                out[j] = dist if np.isnan(out[j]) else min(out[j], dist)
+    return out
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
