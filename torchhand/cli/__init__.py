@@ -16,7 +16,7 @@ from ..errors import TorchhandError
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
 _COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot", "splice", "export", "batch",
-             "capture", "grasp")
+             "capture", "grasp", "manipulate")
 
 
 def build_parser() -> argparse.ArgumentParser:

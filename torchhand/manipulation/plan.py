@@ -1,9 +1,12 @@
 """Contact-force planning from a grasp (Liu 2009, Sec. 3 Stage 1 and Sec. 4, Eqs. 1-4, Sec. 4.3).
 
-**Scope.** This is the planning half of Liu's main loop (Fig. 2). The hand-motion synthesis of Sec. 5 (the per-frame
-SQP that moves q, h and p) is a later stage; until it exists the grasp is **rigid**: hand contacts stay where the
-snapped grasp puts them, fixed in the object frame, and move with the object. So "the contact positions p^{k-1}
-solved by the previous iteration" are always the grasp's, and no hand contact ever slides.
+**Scope.** This is the planning half of Liu's main loop (Fig. 2). Alone (:func:`plan_motion`) the grasp is
+**rigid**: hand contacts stay where the snapped grasp puts them, fixed in the object frame, and move with the object,
+so "the contact positions p^{k-1} solved by the previous iteration" are always the grasp's and no hand contact
+slides. The manipulation loop (:mod:`.manipulate`) steps the same machinery frame by frame (``_start``, ``_step``)
+and, between frames, moves the contacts to the synthesized frame k-1 (points, normals, transported tangents; a
+contact that slid into frame k takes the sliding ray at t = k from ``_Contacts.slide``) and the hand surface that
+new contacts are chosen from (``_Geometry.move_hand``).
 
 Stage 1 (preprocessing)
     Initial contacts: the snapped grasp's (:mod:`.snap`). F_{-1} = argmin sum_i |f_i|^2 subject to Eq. 1 at frame 0
@@ -204,6 +207,8 @@ class _Contacts:
     start: list          # first active frame
     source: list         # slot it was generated from (-1)
     h_obj: list          # the hand point in the object frame at the grasp pose (3,)
+    slide: dict = field(default_factory=dict)   # contact -> world velocity of its hand point relative to the object
+                                                # point at k-1, for contacts sliding into frame k (hand synthesis)
 
 
 def _normal_frame(n: np.ndarray) -> np.ndarray:
@@ -242,6 +247,19 @@ class _Geometry:
         self.sample_local = hand.sample_points.detach().cpu().double().numpy()
         qt = torch.as_tensor(grasp.q)[None]
         self.link_pose = (torch.as_tensor(grasp.wrist_in_object) @ hand.forward_kinematics(qt)[0]).numpy()
+        self._moved = None
+
+    def move_hand(self, q: np.ndarray, wrist_in_object: np.ndarray) -> None:
+        """The hand's current pose (joint angles (D,), wrist in the object frame (4, 4)): new contacts (Sec. 4.3)
+        are chosen from the hand surface there (computed when a contact is added)."""
+        self._moved = (np.asarray(q, dtype=np.float64), np.asarray(wrist_in_object, dtype=np.float64))
+
+    def _refresh(self) -> None:
+        if self._moved is not None:
+            q, w = self._moved
+            self.samples = hand_surface_in_object(self.hand, q, w)
+            self.link_pose = (torch.as_tensor(w) @ self.hand.forward_kinematics(torch.as_tensor(q)[None])[0]).numpy()
+            self._moved = None
 
 
 def _initial_contacts(geo: _Geometry, grasp: Grasp) -> _Contacts:
@@ -253,6 +271,7 @@ def _initial_contacts(geo: _Geometry, grasp: Grasp) -> _Contacts:
 
 
 def _add(c: _Contacts, geo: _Geometry, link: int, h, p, n, start: int, source: int) -> None:
+    geo._refresh()
     n = np.asarray(n, dtype=np.float64)
     n = n / np.linalg.norm(n)
     T = geo.link_pose[link]
@@ -264,6 +283,7 @@ def _add(c: _Contacts, geo: _Geometry, link: int, h, p, n, start: int, source: i
 def _candidate(c: _Contacts, geo: _Geometry, i: int):
     """Sec. 4.3: the hand sample closest to contact i's hand point on a link holding no contact, and its closest
     object point with that face's inward normal; None when every link holds a contact."""
+    geo._refresh()
     free = ~np.isin(geo.sample_link, np.array(c.link))
     if not free.any():
         return None
@@ -293,6 +313,8 @@ def _window_arrays(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanS
         nrm[:, :H] = np.einsum("tij,hj->thi", R, N)
         tan[:, :H] = np.einsum("tij,hj->thi", R, T1)
         mask[:, :H] = ts[:, None] >= np.array(c.start)[None]
+        for i, v in c.slide.items():
+            slide[0, i] = v
     if E:
         pts[:, H:] = geo.env_points[ts]
         nrm[:, H:] = (0.0, 0.0, 1.0)
@@ -469,6 +491,34 @@ def plan_motion(scene, grasp: Grasp, settings: PlanSettings | None = None, *, ha
     """
     settings = settings or PlanSettings()
     t_start = time.perf_counter()
+    run = _start(scene, grasp, settings, hand)
+    t_stage1 = time.perf_counter()
+    f_prev, z = run.f_init_vals, None
+    for k in range(run.geo.T):
+        t0 = time.perf_counter()
+        f_prev, z = _step(run, k, f_prev, z)
+        run.per_frame.append(time.perf_counter() - t0)
+    return _assemble(run, t_start, t_stage1)
+
+
+@dataclass
+class _Run:
+    """The working state of one planning run: geometry, contacts, kept problems, Stage 1's F_{-1} and the frames
+    planned so far (mutable; :func:`plan_motion` and the manipulation loop step it frame by frame)."""
+
+    geo: _Geometry
+    c: _Contacts
+    grasp: Grasp
+    settings: PlanSettings
+    records: list | None
+    f_init_h: int
+    f_init_vals: np.ndarray
+    out: list = field(default_factory=list)
+    per_frame: list = field(default_factory=list)
+
+
+def _start(scene, grasp: Grasp, settings: PlanSettings, hand=None) -> _Run:
+    """Snap the grasp if needed, build the geometry and contacts, and solve Stage 1 (F_{-1})."""
     hand = (hand or grasp_hand(grasp)).to("cpu", torch.float64)
     check_grasp_hand(grasp, hand)
     if not grasp.has_contacts:
@@ -478,27 +528,30 @@ def plan_motion(scene, grasp: Grasp, settings: PlanSettings | None = None, *, ha
         raise InputValueError("scene: the object motion has no frames")
     c = _initial_contacts(geo, grasp)
     records: list | None = [] if settings.keep_problems else None
-    E = geo.E
-
     # Stage 1: F_{-1} = argmin sum |f|^2 s.t. Eq. 1 at frame 0 (f_prev = 0 makes Eq. 3 exactly that).
-    lam, basis, status, _, _, _ = _solve(c, geo, 0, 1, np.zeros((len(c.link) + E, 3)), settings, records)
+    lam, basis, status, _, _, _ = _solve(c, geo, 0, 1, np.zeros((len(c.link) + geo.E, 3)), settings, records)
     f_prev = np.einsum("mij,mj->mi", basis[0], lam[0])
-    f_init_h, f_init_vals = len(c.link), f_prev.copy()
-    t_stage1 = time.perf_counter()
+    return _Run(geo=geo, c=c, grasp=grasp, settings=settings, records=records, f_init_h=len(c.link), f_init_vals=f_prev)
 
-    per_frame, out, z = [], [], None
-    for k in range(geo.T):
-        t0 = time.perf_counter()
-        n = min(settings.window, geo.T - k)
-        H_before = len(f_prev) - E
-        lam, basis, status, obj, args, z = _solve(c, geo, k, n, _pad(f_prev, H_before, E, len(c.link)), settings,
-                                                  records, z)
-        f_k = np.einsum("mij,mj->mi", basis[0], lam[0])
-        out.append((len(c.link), lam[0], f_k, args["points"][0, 0].numpy(), args["normals"][0, 0].numpy(),
-                    args["mask"][0, 0].numpy(), status, obj))
-        f_prev = f_k
-        per_frame.append(time.perf_counter() - t0)
 
+def _step(run: _Run, k: int, f_prev: np.ndarray, z=None):
+    """Plan window k (Eq. 4, contacts added when infeasible) and keep F_k. f_prev: F_{k-1} per slot of the
+    previous frame, (H_prev + E, 3). Returns (F_k (H + E, 3), the window solution for the next warm start)."""
+    c, geo, E = run.c, run.geo, run.geo.E
+    n = min(run.settings.window, geo.T - k)
+    H_before = len(f_prev) - E
+    lam, basis, status, obj, args, z = _solve(c, geo, k, n, _pad(f_prev, H_before, E, len(c.link)), run.settings,
+                                              run.records, z)
+    f_k = np.einsum("mij,mj->mi", basis[0], lam[0])
+    run.out.append([len(c.link), lam[0], f_k, args["points"][0, 0].numpy(), args["normals"][0, 0].numpy(),
+                    args["mask"][0, 0].numpy(), status, obj])
+    return f_k, z
+
+
+def _assemble(run: _Run, t_start: float, t_stage1: float) -> ForcePlan:
+    c, geo, E, out = run.c, run.geo, run.geo.E, run.out
+    hand = geo.hand
+    f_init_h, f_init_vals, records, per_frame = run.f_init_h, run.f_init_vals, run.records, run.per_frame
     # Assemble (T, K) arrays: hand slots in order of creation, then table slots.
     H = len(c.link)
     K, T = H + E, geo.T

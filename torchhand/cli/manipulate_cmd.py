@@ -1,0 +1,101 @@
+"""``torchhand manipulate SCENE --out DIR``: hand motion that realises the scene's object motion from a grasping pose
+(Liu 2009, "Dextrous manipulation from a grasping pose").
+
+For every frame the contact forces of a short window are planned (Sec. 4; contacts are added when the grasp cannot
+produce the required wrench), then the hand pose, the wrist and the contact points of that frame are synthesized so
+that the hand's torques stay close to those of the grasp (Sec. 5). SCENE is a scene directory (its ``grasp.npz`` is
+used unless ``--grasp`` names another) or a built-in scene name (then ``--grasp`` is required). The grasp belongs to
+the first frame of the (``--frames``) range.
+
+Writes DIR/scene/ (with the synthesized wrist), DIR/hand.xml, DIR/solutions/sol_000.npz (with ``torque``,
+``torque_rest`` and ``contact_added``) and DIR/stats.json (``method: "liu2009"``) (docs/result_format.md,
+docs/manipulation.md). Exit 1 when the grasp cannot realise the motion.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import InputValueError
+from ._common import Progress, add_threads_argument, apply_threads
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("manipulate", help="hand motion for an object motion from a grasping pose (Liu 2009)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scene", help="a scene directory (with grasp.npz) or a built-in scene name (needs --grasp)")
+    p.add_argument("--grasp", metavar="GRASP.npz", help="the grasp (default: SCENE/grasp.npz)")
+    p.add_argument("--out", required=True, help="output directory: new, empty, or an earlier result with --overwrite "
+                                                "(checked before any work)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing result directory")
+    p.add_argument("--window", type=int, default=6, help="frames per planning window, n (default 6; 5-10 work)")
+    p.add_argument("--max-force", type=float, default=30.0, metavar="N",
+                   help="normal-force limit of each hand contact, newtons (default 30)")
+    p.add_argument("--no-objective", action="store_true",
+                   help="ablation: minimise |q - q_prev|^2 instead of the torque deviation |u - u_bar|^2")
+    p.add_argument("--frames", metavar="A:B", help="manipulate frames A <= t < B of the scene only")
+    add_threads_argument(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    p.set_defaults(func=run)
+
+
+def _grasp_path(scene_arg: str, grasp: str | None) -> Path:
+    if grasp is not None:
+        return Path(grasp)
+    d = Path(scene_arg)
+    if d.is_dir():
+        return d / "grasp.npz"
+    raise InputValueError(f"--grasp: required for the built-in scene '{scene_arg}' (a scene directory uses its "
+                          f"grasp.npz); make one with 'torchhand grasp'")
+
+
+def run(args) -> int:
+    from ..manipulation import load_grasp
+    from ..manipulation.manipulate import (GraspUnsuitable, ManipulationSettings, manipulate, prepare_output,
+                                           write_manipulation)
+    from ..manipulation.plan import PlanSettings
+    from ..manipulation.synth import SynthSettings
+    from ..scene import load_scene
+    from .synthesize_cmd import _frames
+
+    if args.window < 1:
+        raise InputValueError(f"--window: expected an integer >= 1, got {args.window}")
+    if not args.max_force > 0:
+        raise InputValueError(f"--max-force: expected a positive number of newtons, got {args.max_force:g}")
+    threads = apply_threads(args.threads)
+    grasp_file = _grasp_path(args.scene, args.grasp)
+    writer = prepare_output(args.out, overwrite=args.overwrite)      # before any work
+    try:
+        scene = load_scene(args.scene)
+        if args.frames:
+            scene = scene.with_frames(*_frames(args.frames, scene.T))
+        if args.window > scene.T:
+            raise InputValueError(f"--window: expected at most the {scene.T} frames of the motion, got {args.window}")
+        grasp = load_grasp(grasp_file)
+        settings = ManipulationSettings(
+            plan=PlanSettings(window=args.window, max_contact_force=args.max_force),
+            synth=SynthSettings(objective="pose" if args.no_objective else "torque"))
+    except BaseException:
+        writer.abandon()
+        raise
+    bar = Progress("manipulate", disable=args.no_progress)
+    try:
+        result = manipulate(scene, grasp, settings,
+                            progress=lambda k, T, s: bar.update("frames", f"{k + 1}/{T}, {s:.1f} s", (k + 1) / T))
+    except GraspUnsuitable as err:
+        bar.close()
+        writer.abandon()
+        print(f"torchhand: {err}", file=sys.stderr)
+        return 1
+    except BaseException:
+        bar.close()
+        writer.abandon()
+        raise
+    bar.close()
+    out = write_manipulation(result, writer=writer, grasp_file=str(grasp_file), threads=threads)
+    t = result.timings["total_s"]
+    print(f"{scene.name}: {result.T} frames in {t:.1f} s ({result.T / t:.1f} frames/s), {result.num_added} contact(s) "
+          f"added; wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {out}/solutions/sol_000.npz")
+    return 0

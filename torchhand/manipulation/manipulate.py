@@ -1,0 +1,407 @@
+"""The manipulation loop (Liu 2009, Fig. 2): plan the window's contact forces, add contacts when infeasible,
+synthesize the hand at frame k, update the contacts, slide the window.
+
+For k = 0 .. T-1:
+
+1. **Plan** (Sec. 4, :mod:`.plan`): Eq. 4 over frames k .. k+n-1 with the contact positions of the synthesized
+   frame k-1 (the grasp's at k = 0) frozen in the object frame; contacts that slid into frame k use the sliding
+   ray at t = k. F_{k-1} is the re-projected force of frame k-1 (F_{-1} of Stage 1 at k = 0).
+2. **Add contacts** when infeasible (Sec. 4.3, inside :mod:`.plan`); no set of contacts: :class:`GraspUnsuitable`.
+3. **Synthesize** frame k (Sec. 5, :func:`.synth.synthesize_frame`): q, the root pose and the hand points h; the
+   object points p follow from Eq. 6 and are projected onto the mesh (trimesh), with the mesh's normal there.
+4. **Re-project the forces** (addition (c) of docs/manipulation.md): ``min sum_i |B_i(p^k) lambda_i - f_i^plan|^2``
+   subject to Eq. 1 at frame k with the new contact points, the cones and the force limit (ADMM of
+   :func:`torchhand.kernels.convex_qp.solve_convex_qp`, warm-started from the plan); the torques ``u^k = n(q^k) +
+   sum_i J_i(q^k, h_i^k)^T f_i^k`` are recomputed with these forces, so the stored forces balance the object and
+   the stored torques hold them.
+5. **Update contact states**: a contact whose material points moved apart tangentially faster than
+   ``slip_speed`` (1 mm/s) slides into frame k+1 (Eq. 7's relaxed rows and the sliding ray in planning).
+
+Equilibrium torques (Sec. 3 Stage 1): ``u_bar = n(q0) + sum_i J_i(q0, h_i)^T f_i^{-1}``, F_{-1} the minimum-norm
+forces that hold the object at frame 0, at the grasp pose (wrist at ``object_pose[0] @ wrist_in_object``).
+
+Conventions: metres, seconds, radians, newtons; T_world_* 4x4 column-vector transforms; contact normals point into
+the object; f = force of the hand (or table) on the object; generalised forces ``(torque about the root origin,
+force, joint torques)`` in the order of :func:`~torchhand.hand.dynamics.point_jacobian` with ``wrt_root=True``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..kernels.convex_qp import solve_convex_qp
+from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
+from ..kernels.status import SolverStatus
+from . import plan as _plan
+from .grasp import Grasp
+from .plan import GraspUnsuitable, PlanSettings
+from .snap import signed_distance
+from .synth import HandFrame, SynthContext, SynthSettings, synthesize_frame, torques
+
+RELEASE_GAP = 5e-4
+"""A grasp contact whose link capsule stays farther than this from the object (or deeper in it) after the first
+frame is released (metres): the capsule model cannot realise it without moving the other contacts."""
+
+__all__ = ["ManipulationSettings", "ManipulationResult", "manipulate", "solution_arrays", "write_manipulation",
+           "GraspUnsuitable"]
+
+
+@dataclass(frozen=True)
+class ManipulationSettings:
+    """plan: :class:`~torchhand.manipulation.plan.PlanSettings` (window, force limit, added contacts, mass, friction);
+    synth: :class:`~torchhand.manipulation.synth.SynthSettings` (objective, speed bounds, proximal weights)."""
+
+    plan: PlanSettings = field(default_factory=PlanSettings)
+    synth: SynthSettings = field(default_factory=SynthSettings)
+
+
+@dataclass(frozen=True, eq=False)
+class ManipulationResult:
+    """A synthesized manipulation (NumPy, float64). T frames, D joints, K hand-contact slots (in order of creation),
+    E table slots.
+
+    scene: the input scene; grasp: the (snapped) grasp; hand: the HandModel (float64)
+    q: joint angles, (T, D), rad; root: wrist poses T_world_hand, (T, 4, 4)
+    torque: u^k, (T, 6 + D): torque about the root origin (world, N m), force (world, N), joint torques (N m)
+    torque_rest: u_bar, (6 + D,)
+    contact_link: (K,) link index; contact_mask: (T, K) active (carrying force)
+    contact_hand_local: h, (T, K, 3), link frame; contact_object_local: p, (T, K, 3), object frame
+    contact_point: world contact point on the object, (T, K, 3); contact_normal: into the object, (T, K, 3)
+    contact_force: re-projected f = B lambda, (T, K, 3), N; contact_lambda: (T, K, 4); planned_force: (T, K, 3)
+    contact_sliding: (T, K) the contact slid into frame t; contact_added: (T, K) an added contact, active at t
+    env_mask (T, E), env_point (T, E, 3), env_force (T, E, 3): table contacts and their re-projected forces
+    objective: |u - u_bar|^2 (pose ablation: |q - q^{k-1}|^2) per frame, (T,)
+    iterations: Gauss-Newton iterations per frame (T,); converged: (T,) bool; violation: (T,) metres
+    reproject_status: :class:`~torchhand.kernels.status.SolverStatus` of each frame's re-projection QP (T,)
+    num_added: contacts added; settings; timings: seconds (``stage1_s``, ``plan_s``, ``synth_s``, ``total_s``,
+    ``per_frame_s``)
+    """
+
+    scene: object
+    grasp: Grasp
+    hand: object
+    q: np.ndarray
+    root: np.ndarray
+    torque: np.ndarray
+    torque_rest: np.ndarray
+    contact_link: np.ndarray
+    contact_mask: np.ndarray
+    contact_hand_local: np.ndarray
+    contact_object_local: np.ndarray
+    contact_point: np.ndarray
+    contact_normal: np.ndarray
+    contact_force: np.ndarray
+    contact_lambda: np.ndarray
+    planned_force: np.ndarray
+    contact_sliding: np.ndarray
+    contact_added: np.ndarray
+    env_mask: np.ndarray
+    env_point: np.ndarray
+    env_force: np.ndarray
+    objective: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    violation: np.ndarray
+    reproject_status: np.ndarray
+    num_added: int
+    settings: ManipulationSettings
+    friction: float
+    mass: float
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def T(self) -> int:
+        return int(self.q.shape[0])
+
+
+def _boundary(f: np.ndarray, n: np.ndarray, t1: np.ndarray, mu: float, ratio: float) -> bool:
+    fn = float(f @ n)
+    t2 = np.cross(n, t1)
+    return fn > 0 and abs(f @ t1) + abs(f @ t2) >= ratio * mu * fn
+
+
+def _reproject(run, k: int, f_plan: np.ndarray, lam_plan: np.ndarray):
+    """Addition (c): the forces closest to the plan that balance frame k with the updated contacts.
+    Returns (forces (M, 3), lambda (M, 4), status)."""
+    args = _plan._window_arrays(run.c, run.geo, k, 1, run.settings)
+    lps = assemble_frame_lps(**args)
+    M = args["points"].shape[2]
+    basis = assemble_window_qp(f_prev=args["points"].new_zeros(1, M, 3), **args).basis[0, 0]      # (M, 3, 4)
+    Bd = torch.block_diag(*basis.unbind(0))
+    zero = (basis.abs().sum(-2) == 0).reshape(-1).to(Bd.dtype)
+    Q = 2 * (Bd.T @ Bd) + 2 * torch.diag(zero) + 1e-9 * torch.eye(4 * M, dtype=Bd.dtype)
+    p = -2 * Bd.T @ torch.as_tensor(f_plan.reshape(-1), dtype=Bd.dtype)
+    warm = (torch.as_tensor(lam_plan.reshape(1, -1)), None, None)
+    res = solve_convex_qp(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm, method="admm")
+    status = int(res.status[0])
+    if status != int(SolverStatus.CONVERGED):
+        return f_plan, lam_plan, status
+    lam = res.z[0].clamp_min(0).reshape(M, 4)
+    return (basis @ lam[..., None]).squeeze(-1).numpy(), lam.numpy(), status
+
+
+def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None, *, hand=None,
+               progress=None) -> ManipulationResult:
+    """Synthesize the hand motion that realises ``scene``'s object motion from ``grasp`` (module docstring).
+
+    Args:
+        scene: a :class:`~torchhand.scene.Scene` (object, pose track, friction, table); its hand track is only the
+            side; the wrist is synthesized
+        grasp: the grasp at the scene's frame 0 (snapped here when it has no contacts)
+        settings: :class:`ManipulationSettings`
+        hand: the grasp's hand model (default :func:`~torchhand.manipulation.grasp.grasp_hand`)
+        progress: called as ``progress(k, T, seconds)`` after each frame, or None
+
+    Returns:
+        :class:`ManipulationResult`
+
+    Raises:
+        GraspUnsuitable: a planning window stays infeasible whatever contacts are added (frame, wrench deficit);
+        InputValueError / UnknownNameError: a grasp that does not fit its hand or cannot be snapped.
+    """
+    settings = settings or ManipulationSettings()
+    ps, ss = settings.plan, settings.synth
+    t_start = time.perf_counter()
+    run = _plan._start(scene, grasp, ps, hand)
+    geo, c = run.geo, run.c
+    hand = geo.hand
+    grasp = run.grasp
+    T = geo.T
+    pose = geo.pose
+    H0 = len(c.link)
+    q0 = grasp.q.copy()
+    root0 = pose[0] @ grasp.wrist_in_object
+    links0 = np.array(c.link)
+    env = scene.environment
+    ctx = SynthContext(hand, scene.object.mesh, np.zeros(6 + hand.num_joints), scene.fps,
+                       env.table_height if env.table else None, tuple(scene.gravity.double().tolist()), ss)
+    u_bar = torques(hand, q0[None], root0[None], links0, np.stack(c.h)[None], run.f_init_vals[:H0])[0]
+    ctx.u_bar = u_bar
+    t_stage1 = time.perf_counter()
+    prev = HandFrame(q=q0, root=root0, h=np.stack(c.h), p=np.stack(c.p))
+    pose_prev = pose[0]
+    added_k: dict = {}
+    f_prev, z = run.f_init_vals, None
+    rows, per_frame, t_plan, t_synth = [], [], 0.0, 0.0
+    for k in range(T):
+        t0 = time.perf_counter()
+        H_before = len(c.link)
+        f_k, z = _plan._step(run, k, f_prev, z)
+        lam_k = run.out[-1][1]
+        t1 = time.perf_counter()
+        H = len(c.link)
+        links = np.array(c.link)
+        for i in range(H_before, H):                       # contacts added by this window
+            added_k[i] = (k, float(np.linalg.norm(_frame_points(hand, prev, links[i:i + 1], np.stack(c.h)[i:i + 1])[0]
+                                                  - (pose[k][:3, :3] @ c.p[i] + pose[k][:3, 3]))))
+        start = np.array(c.start)
+        source = np.array(c.source)
+        active = start <= k
+        closing = active & (start == k) & (source >= 0)
+        approach = {}
+        for i, (ta, d) in added_k.items():
+            te = start[i]
+            if k < te:
+                approach[i] = d * (te - k) / max(te - ta, 1)
+        h_prev = np.concatenate([prev.h, np.stack(c.h)[H_before:]], 0) if H > len(prev.h) else prev.h
+        p_prev = np.concatenate([prev.p, np.stack(c.p)[H_before:]], 0) if H > len(prev.p) else prev.p
+        prev = HandFrame(q=prev.q, root=prev.root, h=h_prev, p=p_prev)
+        mu = geo.mu
+        normals_prev = np.stack(c.n)
+        n_w = normals_prev @ pose[k][:3, :3].T
+        t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
+        slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], mu, ss.boundary))
+                          for i in range(H)])
+        rel = pose[k] @ np.linalg.inv(pose_prev)
+        guess = HandFrame(q=prev.q.copy(), root=rel @ prev.root, h=prev.h.copy(), p=prev.p)
+        res = synthesize_frame(ctx, prev, guess, links, f_k[:H], active, pose[k], pose_prev, normals_prev, slide,
+                               approach, closing, settle=k == 0)
+        q, root, h = res.frame.q, res.frame.root, res.frame.h
+        if k == 0:                                         # grasp contacts the capsule model cannot close: released
+            for i in np.flatnonzero(active & (np.abs(res.gap) > RELEASE_GAP)):
+                c.start[i] = T
+                active[i] = False
+        # object points from Eq. 6, projected onto the mesh, with the mesh's normal
+        x = _frame_points(hand, HandFrame(q=q, root=root, h=h, p=None), links, h)
+        Rs, os_ = pose[k][:3, :3], pose[k][:3, 3]
+        p_obj = (x - os_) @ Rs
+        _, p_proj, _ = signed_distance(scene.object.mesh, p_obj)
+        n_in = -ctx.object_normals(p_proj)
+        p_new = prev.p.copy()
+        for i in range(H):
+            if active[i]:
+                c.h[i], c.p[i] = h[i].copy(), p_proj[i].copy()
+                n = n_in[i]
+                t = c.t1[i] - (c.t1[i] @ n) * n
+                c.n[i], c.t1[i] = n, (t / np.linalg.norm(t) if np.linalg.norm(t) > 1e-9 else _plan._normal_frame(n))
+                p_new[i] = c.p[i]
+        f_fin, lam_fin, rstatus = _reproject(run, k, f_k, lam_k)
+        u = torques(hand, q[None], root[None], links[active], h[active][None], f_fin[:H][active])[0]
+        # contact states for frame k+1 (Eq. 7's relative velocity of the material points)
+        xm = _frame_points(hand, HandFrame(q=q, root=root, h=None, p=None), links, prev.h)
+        x_prev = _frame_points(hand, prev, links, prev.h)
+        d_now = xm - (prev.p @ Rs.T + os_)
+        d_before = x_prev - (prev.p @ pose_prev[:3, :3].T + pose_prev[:3, 3])
+        v = (d_now - d_before) * scene.fps
+        v_t = v - (v * n_w).sum(-1, keepdims=True) * n_w
+        speed = np.linalg.norm(v_t, axis=-1)
+        sliding_now = slide.copy()
+        c.slide.clear()
+        for i in range(H):
+            if active[i] and not closing[i] and speed[i] > ss.slip_speed:
+                c.slide[i] = v_t[i]
+        rows.append(dict(H=H, q=q, root=root, u=u, h=h.copy(), p=p_new.copy(), point=np.stack(c.p) @ Rs.T + os_,
+                         normal=np.stack(c.n) @ Rs.T, force=f_fin, lam=lam_fin, plan=f_k.copy(), active=active,
+                         sliding=sliding_now & active, added=active & (source >= 0), obj=res.objective,
+                         it=res.iterations, conv=res.converged, viol=res.violation, rstatus=rstatus))
+        geo.move_hand(q, np.linalg.inv(pose[k]) @ root)
+        prev = HandFrame(q=q, root=root, h=h, p=p_new)
+        pose_prev = pose[k]
+        f_prev = f_fin
+        t2 = time.perf_counter()
+        t_plan += t1 - t0
+        t_synth += t2 - t1
+        per_frame.append(t2 - t0)
+        if progress is not None:
+            progress(k, T, t2 - t_start)
+    return _collect(scene, grasp, hand, settings, run, rows, u_bar, {
+        "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
+        "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame})
+
+
+def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
+    from .synth import _points
+    return _points(hand, frame.q, frame.root, np.asarray(links), np.asarray(local))
+
+
+def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings) -> ManipulationResult:
+    geo, c = run.geo, run.c
+    T, E, K = geo.T, geo.E, len(c.link)
+    D = hand.num_joints
+    z3 = lambda: np.zeros((T, K, 3))  # noqa: E731
+    out = dict(q=np.zeros((T, D)), root=np.zeros((T, 4, 4)), torque=np.zeros((T, 6 + D)),
+               contact_mask=np.zeros((T, K), bool), contact_hand_local=z3(), contact_object_local=z3(),
+               contact_point=z3(), contact_normal=z3(), contact_force=z3(), contact_lambda=np.zeros((T, K, 4)),
+               planned_force=z3(), contact_sliding=np.zeros((T, K), bool), contact_added=np.zeros((T, K), bool),
+               env_force=np.zeros((T, E, 3)), objective=np.zeros(T), iterations=np.zeros(T, np.int64),
+               converged=np.zeros(T, bool), violation=np.zeros(T), reproject_status=np.zeros(T, np.int8))
+    for t, r in enumerate(rows):
+        H = r["H"]
+        out["q"][t], out["root"][t], out["torque"][t] = r["q"], r["root"], r["u"]
+        m = r["active"]
+        out["contact_mask"][t, :H] = m
+        out["contact_hand_local"][t, :H] = r["h"]
+        out["contact_object_local"][t, :H] = r["p"]
+        out["contact_point"][t, :H] = r["point"] * m[:, None]
+        out["contact_normal"][t, :H] = r["normal"] * m[:, None]
+        out["contact_force"][t, :H] = r["force"][:H] * m[:, None]
+        out["contact_lambda"][t, :H] = r["lam"][:H] * m[:, None]
+        out["planned_force"][t, :H] = r["plan"][:H] * m[:, None]
+        out["contact_sliding"][t, :H] = r["sliding"]
+        out["contact_added"][t, :H] = r["added"]
+        out["env_force"][t] = r["force"][H:] * geo.env_mask[t][:, None]
+        out["objective"][t], out["iterations"][t] = r["obj"], r["it"]
+        out["converged"][t], out["violation"][t], out["reproject_status"][t] = r["conv"], r["viol"], r["rstatus"]
+    ps = settings.plan
+    return ManipulationResult(
+        scene=scene, grasp=grasp, hand=hand, torque_rest=u_bar, contact_link=np.array(c.link, dtype=np.int64),
+        env_mask=geo.env_mask.copy(), env_point=geo.env_points.copy(), num_added=int(sum(s >= 0 for s in c.source)),
+        settings=settings, friction=geo.mu,
+        mass=float(ps.mass if ps.mass is not None else scene.object.mass), timings=timings, **out)
+
+
+# ------------------------------------------------------------------------------------------------ result directory
+def solution_arrays(result: ManipulationResult) -> dict:
+    """The ``sol_000.npz`` arrays (docs/result_format.md, docs/manipulation.md): every key of the contract plus
+    ``torque`` (T, 6 + D), ``torque_names`` (6 + D,), ``torque_rest`` (6 + D,), ``contact_added`` (T, K) and the
+    method's own keys (``contact_lambda``, ``planned_force``, ``contact_hand_local``, ``contact_object_local``,
+    ``objective``, ``sqp_iterations``, ``mass``)."""
+    from ..result import FORMAT_VERSION
+
+    r = result
+    T, K = r.contact_mask.shape
+    order = np.argsort(~r.contact_mask, axis=1, kind="stable")          # active contacts first in every frame
+    take = lambda a: np.take_along_axis(a, order[..., None] if a.ndim == 3 else order, 1)  # noqa: E731
+    mask = take(r.contact_mask)
+    link = np.where(mask, r.contact_link[order], -1)
+    names = list(r.hand.joint_names)
+    return {
+        "format_version": np.array(FORMAT_VERSION), "joint_names": np.array(names),
+        "q": r.q, "root_pose": r.root, "object_pose": r.scene.object_pose.double().numpy(),
+        "fps": np.array(float(r.scene.fps)),
+        "contact_mask": mask, "contact_link": link.astype(np.int64), "contact_link_name": np.array(r.hand.link_names),
+        "contact_point": take(r.contact_point), "contact_normal": take(r.contact_normal),
+        "contact_force": take(r.contact_force), "contact_sliding": take(r.contact_sliding) & mask,
+        "env_contact_mask": r.env_mask, "env_contact_point": r.env_point * r.env_mask[..., None],
+        "env_contact_force": r.env_force,
+        "strategy": np.array("liu2009"), "friction": np.array(r.friction), "reconstructed": np.array(True),
+        "guiding": np.zeros((T, r.hand.num_fingers), bool),
+        "torque": r.torque, "torque_rest": r.torque_rest, "torque_equilibrium": r.torque_rest,
+        "torque_names": np.array(["root_torque_x", "root_torque_y", "root_torque_z", "root_force_x", "root_force_y",
+                                  "root_force_z"] + names),
+        "contact_added": take(r.contact_added) & mask, "contact_lambda": take(r.contact_lambda),
+        "planned_force": take(r.planned_force), "contact_hand_local": take(r.contact_hand_local),
+        "contact_object_local": take(r.contact_object_local), "objective": r.objective,
+        "sqp_iterations": r.iterations, "mass": np.array(r.mass),
+    }
+
+
+def stats_dict(result: ManipulationResult, **extra) -> dict:
+    """stats.json of a manipulation result (``method: "liu2009"``)."""
+    from ..result import FORMAT_VERSION
+
+    r, s = result, result.settings
+    fps_run = r.T / r.timings["total_s"] if r.timings.get("total_s") else None
+    return {"format_version": FORMAT_VERSION, "complete": True, "method": "liu2009", "scene": r.scene.name,
+            "T": r.T, "fps": float(r.scene.fps), "solutions": 1, "time_s": r.timings.get("total_s"),
+            "frames_per_second": fps_run, "timings_s": r.timings, "added_contacts": r.num_added,
+            "max_joint_speed": s.synth.joint_speed, "sqp_iterations": r.iterations.tolist(),
+            "sqp_converged": r.converged.tolist(), "reproject_status": r.reproject_status.tolist(),
+            "settings": {"plan": dataclasses.asdict(s.plan), "synth": dataclasses.asdict(s.synth)},
+            "mass": r.mass, "friction": r.friction, "threads": torch.get_num_threads(), **extra}
+
+
+def prepare_output(out, *, overwrite: bool = False):
+    """Validate and claim the result directory before any work (the synthesis writer's rules). Raises
+    InputValueError with one line."""
+    return _writer_class()(out, overwrite=overwrite)
+
+
+def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool = False, writer=None,
+                       **extra) -> Path:
+    """Write the result directory: scene/ (with the synthesized wrist), hand.xml, solutions/sol_000.npz,
+    stats.json last; every file atomically. Returns its path."""
+    writer = writer if writer is not None else prepare_output(out, overwrite=overwrite)
+    return writer.write(result, extra)
+
+
+def _writer_class():
+    from ..synthesis.output import ResultWriter, _atomic_bytes, _atomic_json, write_hand_file
+
+    class Writer(ResultWriter):
+        def write(self, result: ManipulationResult, extra: dict) -> Path:
+            scene = result.scene
+            track = dataclasses.replace(scene.hands[0], wrist_pose=torch.as_tensor(result.root))
+            scene = dataclasses.replace(scene, hands=(track,) + tuple(scene.hands[1:]))
+            scene.export(self.stage / "scene", overwrite=True)
+            write_hand_file(self.stage / "hand.xml", result.hand, track)
+            (self.stage / "solutions").mkdir(exist_ok=True)
+            for old in (self.stage / "solutions").glob("sol_*.npz"):
+                old.unlink()
+            self.problem = result
+            self._partial(scene.name, 0)
+            buf = io.BytesIO()
+            np.savez_compressed(buf, **solution_arrays(result))
+            _atomic_bytes(self.stage / "solutions" / "sol_000.npz", buf.getvalue())
+            self.written = 1
+            _atomic_json(self.stage / "stats.json", stats_dict(result, **extra))
+            return self.swap_in()
+
+    return Writer

@@ -1,0 +1,607 @@
+"""Per-frame hand-motion synthesis (Liu 2009, Sec. 5, Eqs. 5-8).
+
+Given the planned contact forces F_k of frame k (:mod:`.plan`), :func:`synthesize_frame` moves the hand (joint
+angles q, the free root's pose) and the contact points (h_i on the link, p_i on the object) so that the torques the
+hand needs to hold those forces stay close to the equilibrium torques u_bar of the grasp:
+
+    argmin_{q, root, h}  |u(q, root, h) - u_bar|^2 + prox        (Eq. 8 with u eliminated by Eq. 5)
+    u = n(q) + sum_i J_i(q, h_i)^T f_i                           (Eq. 5 at rest: inertia off, q_dot = 0)
+
+``n(q)`` is :meth:`~torchhand.hand.HandModel.gravity_torques` (the sign of MuJoCo's ``qfrc_bias``), ``J_i`` the
+point Jacobian with the root twist first (:func:`~torchhand.hand.dynamics.point_jacobian`, ``wrt_root=True``) and
+``f_i`` the force of the hand on the object (so ``-f_i`` acts on the hand and the actuators supply ``+J^T f``).
+Generalised forces are ``(torque about the root origin, force, joint torques)``, world frame, N m and N.
+
+Constraints (linearised at every iteration)
+    * Eq. 6, contacts stay together: the hand point of a contact is parametrised by its position s in [0, 1] along
+      its link capsule's axis, ``h = c(s) - r n`` (the capsule point facing the object, n the object's outward normal
+      at c, the capsule standing in for Liu's ellipsoid segment), and the capsule must touch the object,
+      ``sd(c(s)) = r`` (SDF grid of the object; smooth at the object's edges, where ``sd(p) = 0`` is not). The object
+      point is eliminated: ``p = E(s_k)^-1 E(q) h`` (projected onto the mesh by the caller).
+    * Eq. 7, no slip: with ``d = E(q) h_i^{k-1} - E(s_k) p_i^{k-1}`` minus the same offset at k-1 (``v_r dt``), a
+      static contact keeps both tangential components of d zero (rolling allowed: the normal component and the
+      contact point are free). A contact that slid into frame k, or whose planned force lies on the cone boundary
+      (``|f.t1| + |f.t2| >= 0.97 mu f.n``), may slide along the tangential force the hand applies:
+      ``d . t3 = 0``, ``-d . f_t <= 0`` (t3 normal to f_t in the tangent plane).
+    * joint limits; ``|q - q^{k-1}| <= dq_max`` per frame; root speed and angular speed bounds; ``|s - s^{k-1}|``
+      times the axis length at most ``h_step`` per frame;
+    * non-penetration (addition (a) of docs/manipulation.md): points along every link capsule's axis keep
+      ``sd >= r - margin`` from the object and ``z - r >= table - margin`` from the table; an axis point already
+      deeper at the start of the frame may not go deeper;
+    * contacts added by the planner (Sec. 4.3) that are not active yet approach their object point with a receding
+      slack ``gap <= d_j (t_e - t) / (t_e - t_a)`` (linear; t_a the frame of addition, t_e its first active frame);
+      from t_e on they obey Eq. 6 (Eq. 7 from the frame after).
+
+Solver (Sec. 5.3 says SQP): Gauss-Newton on ``|r(x)|^2`` with ``r = u - u_bar`` over x = (root twist, q, s): the
+Jacobian of r by batched forward differences (one batched call per iteration); each step is a dense convex QP
+(Gauss-Newton Hessian, the proximal terms and Levenberg-Marquardt damping) solved by a Goldfarb-Idnani dual
+active-set method (:func:`dense_qp`); a step that raises the l1 merit ``|r|^2 + prox + w |violation|_1`` is rejected
+and the damping raised; an infeasible step goes to elastic mode (l1 slacks on the equalities); after ``max_iters``
+iterations, least-norm restoration steps onto the constraints.
+
+Deviations from the paper (documented choices)
+    * Proximal terms ``eps |q - q^{k-1}|^2`` (and on the root and on s): fingers that carry no force have tiny gravity
+      torques and are otherwise undetermined, and along a line contact (a capsule lying on a face) the contact point
+      could drift without any motion of the hand.
+    * The forces are held at their planned world values during the iterations (B_i(p_i) is not re-linearised); the
+      caller re-projects them onto the final contact positions (addition (c), :mod:`.manipulate`).
+    * ``settle`` (the first frame): Eq. 7 as weighted residual rows, so the grasp's contacts can settle onto the
+      capsule model.
+    * The ablation ``objective="pose"`` minimises ``|q - q^{k-1}|^2`` (root twist included) instead of the torque
+      deviation (Sec. 6 "without the objective").
+    * Inertia (``M(q) q_ddot``) is off (Liu: "relatively small"); the root is a free 6-DOF body, not an arm.
+
+Conventions: metres, seconds, radians, newtons; column-vector 4x4 transforms; contact normals point into the
+object; f is the force of the hand on the object.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..errors import InputValueError
+
+SETTLE_WEIGHT = 100.0
+"""Weight of the soft no-slip rows of the first frame, N m per metre."""
+ELASTIC_WEIGHT = 1000.0
+"""l1 weight (per metre) of the Eq. 7 rows (and of non-penetration) in the merit and in elastic mode."""
+TOUCH_WEIGHT = 1000.0
+"""l1 weight (per metre) of the Eq. 6 rows in the merit and in elastic mode."""
+
+__all__ = ["SynthSettings", "HandFrame", "FrameResult", "SynthContext", "synthesize_frame", "torques", "dense_qp",
+           "rotvec", "exp_rot"]
+
+
+@dataclass(frozen=True)
+class SynthSettings:
+    """Settings of :func:`synthesize_frame`.
+
+    objective: "torque" (Eq. 8, |u - u_bar|^2) or "pose" (the ablation: |q - q^{k-1}|^2)
+    joint_speed: |dq/dt| bound, rad/s (0.3 rad per frame at 30 fps)
+    root_speed: root translation speed bound, m/s; root_rate: root angular speed bound, rad/s
+    prox_q: weight of (q - q^{k-1}) and of the root rotation in the residual, N m per rad
+    prox_x: weight of the root translation in the residual, N m per metre
+    prox_h: weight of the contact's axis motion (s - s^{k-1}) times the axis length in the residual, N m per metre:
+        along a line contact (a capsule lying on a face) the contact point can move without any motion of the hand,
+        so its drift is damped
+    h_step: bound on that motion per frame, metres (ten times more at the settling first frame)
+    margin: allowed penetration of capsules into the object and the table, metres
+    max_iters: Gauss-Newton iterations per frame (three times as many at the settling first frame); step_tol: stop when the largest step is below it (rad, m)
+    boundary: a planned force with |f.t1| + |f.t2| >= boundary mu f.n lies on the cone boundary (may slide)
+    slip_speed: a contact whose material points move apart tangentially faster than this slides, m/s
+    voxel: SDF grid spacing of the object, metres
+    """
+
+    objective: str = "torque"
+    joint_speed: float = 9.0
+    root_speed: float = 1.0
+    root_rate: float = 6.0
+    prox_q: float = 1e-3
+    prox_x: float = 1e-2
+    prox_h: float = 3.0
+    h_step: float = 1e-3
+    margin: float = 5e-4
+    max_iters: int = 3
+    step_tol: float = 1e-7
+    boundary: float = 0.97
+    slip_speed: float = 1e-3
+    voxel: float = 0.001
+
+    def __post_init__(self):
+        if self.objective not in ("torque", "pose"):
+            raise InputValueError(f"objective: expected 'torque' or 'pose', got {self.objective!r}")
+        for name in ("joint_speed", "root_speed", "root_rate", "prox_q", "prox_x", "prox_h", "h_step", "voxel",
+                     "slip_speed"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputValueError(f"{name}: expected a positive number, got {v!r}")
+        if isinstance(self.max_iters, bool) or not isinstance(self.max_iters, int) or self.max_iters < 1:
+            raise InputValueError(f"max_iters: expected an integer >= 1, got {self.max_iters!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class HandFrame:
+    """The hand and its contacts at one frame (NumPy, float64; H hand contacts).
+
+    q: joint angles, (D,), radians; root: wrist pose T_world_hand, (4, 4), metres
+    h: contact points on their links, link frame, (H, 3), metres
+    p: contact points on the object, object frame, (H, 3), metres
+    """
+
+    q: np.ndarray
+    root: np.ndarray
+    h: np.ndarray
+    p: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """What :func:`synthesize_frame` returns.
+
+    frame: the synthesized :class:`HandFrame`
+    objective: the final |r|^2 (without the proximal terms), (N m)^2 (pose objective: rad^2)
+    iterations: Gauss-Newton iterations; converged: the last step was below ``step_tol``
+    violation: largest constraint violation left, metres
+    gap: distance of each contact's link capsule from the object (its Eq. 6 residual), (H,), metres
+    """
+
+    frame: HandFrame
+    objective: float
+    iterations: int
+    converged: bool
+    violation: float
+    gap: np.ndarray | None = None
+
+
+class SynthContext:
+    """What stays fixed over a motion: the hand (float64, CPU), the object SDF, the capsule-axis samples, the table
+    and the equilibrium torques u_bar (6 + D,)."""
+
+    def __init__(self, hand, mesh, u_bar: np.ndarray, fps: float, table_height: float | None,
+                 gravity=(0.0, 0.0, -9.81), settings: SynthSettings | None = None, samples_per_link: int = 4):
+        from ..sdf import SDFGrid
+
+        self.settings = settings or SynthSettings()
+        self.hand = hand.to("cpu", torch.float64)
+        self.sdf = SDFGrid.from_mesh(mesh, self.settings.voxel, progress=False).to(dtype=torch.float64)
+        self.u_bar = np.asarray(u_bar, dtype=np.float64)
+        self.dt = 1.0 / float(fps)
+        self.table = table_height
+        self.gravity = tuple(float(g) for g in gravity)
+        r = self.hand.capsule_radius.numpy()
+        a, b = self.hand.capsule_a.numpy(), self.hand.capsule_b.numpy()
+        links = np.flatnonzero(r > 0)
+        s = np.linspace(0.0, 1.0, samples_per_link)
+        self.ax_link = np.repeat(links, samples_per_link)
+        self.ax_local = (a[links, None] + s[None, :, None] * (b - a)[links, None]).reshape(-1, 3)
+        self.ax_radius = r[self.ax_link]
+        self.cap_a, self.cap_b, self.cap_r = a, b, r
+        lim = self.hand.joint_limits.numpy()
+        self.q_lo, self.q_hi = lim[:, 0], lim[:, 1]
+        self.D = self.hand.num_joints
+
+    def object_normals(self, points: np.ndarray) -> np.ndarray:
+        """Outward unit normals of the object at object-frame points (P, 3): the SDF grid's gradient, continuous
+        across edges (a blend of the faces' normals within a voxel of an edge, inside their normal cone)."""
+        _, g = self.sdf.query_with_grad(torch.as_tensor(np.asarray(points, dtype=np.float64))[None])
+        g = g[0].numpy()
+        return g / np.maximum(np.linalg.norm(g, axis=-1, keepdims=True), 1e-12)
+
+    def torques(self, q, root, links, h, f) -> np.ndarray:
+        """u = n(q) + sum_i J_i^T f_i for a batch: q (B, D), root (B, 4, 4), links (H,), h (B, H, 3), f (H, 3)
+        world newtons; returns (B, 6 + D)."""
+        return torques(self.hand, q, root, links, h, f, self.gravity)
+
+
+def torques(hand, q, root, links, h, f, gravity=(0.0, 0.0, -9.81)) -> np.ndarray:
+    """The generalised force the hand must produce to hold contact forces f at rest (Eq. 5 without inertia):
+    ``n(q) + sum_i J_i(q, h_i)^T f_i``.
+
+    hand: HandModel (float64); q: (B, D) rad; root: (B, 4, 4) T_world_hand; links: (H,) link indices; h: (B, H, 3)
+    link-frame points, metres; f: (H, 3) or (B, H, 3) forces of the hand on the object, world, newtons.
+    returns: (B, 6 + D): torque about the root origin (world, N m), force (world, N), joint torques (N m)
+    """
+    q = torch.as_tensor(np.asarray(q), dtype=torch.float64)
+    root = torch.as_tensor(np.asarray(root), dtype=torch.float64)
+    B, L = q.shape[0], hand.num_links
+    # n(q) = sum_l J_l(com_l)^T (-m_l g): the links' weights enter as point forces at their centres of mass, so
+    # one Jacobian pass gives gravity and contact terms together
+    g = torch.as_tensor(gravity, dtype=torch.float64)
+    w = (-hand.link_mass.double()[:, None] * g).expand(B, L, 3)
+    pts = hand.link_com.double().expand(B, L, 3)
+    idx = torch.arange(L)
+    if len(links):
+        fb = torch.as_tensor(np.broadcast_to(np.asarray(f), (B, len(links), 3)).copy(), dtype=torch.float64)
+        w = torch.cat([fb, w], 1)
+        pts = torch.cat([torch.as_tensor(np.asarray(h), dtype=torch.float64).expand(B, len(links), 3), pts], 1)
+        idx = torch.cat([torch.as_tensor(np.asarray(links), dtype=torch.long), idx])
+    u = hand.contact_torques(q, root, idx, pts, w)
+    return u.numpy()
+
+
+# ------------------------------------------------------------------------------------------------ rotations
+def exp_rot(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices of rotation vectors, (..., 3) -> (..., 3, 3) (Rodrigues)."""
+    w = np.asarray(w, dtype=np.float64)
+    th = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    K = K - np.swapaxes(K, -1, -2)
+    small = th < 1e-8
+    a = np.where(small, 1.0, np.sin(th) / np.where(small, 1.0, th))
+    b = np.where(small, 0.5, (1 - np.cos(th)) / np.where(small, 1.0, th * th))
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of a rotation matrix (3, 3) -> (3,)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+# ------------------------------------------------------------------------------------------------ dense QP
+def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
+             max_iters: int = 200, tol: float = 1e-10):
+    """``min 1/2 x^T H x + g^T x  s.t.  A x = b, C x <= d`` for a small dense strictly convex QP (H positive
+    definite), by the Goldfarb-Idnani dual active-set method (KKT systems solved densely at every change).
+
+    returns: (x (n,), status: 0 solved, 1 infeasible, 2 iteration limit, largest violation left)
+    """
+    n = H.shape[0]
+    N_eq = [A[i] for i in range(A.shape[0])]
+    act: list[int] = []                                       # active inequality rows
+    u = np.zeros(0)                                           # multipliers of act (>= 0)
+
+    def kkt(rhs_x, rhs_c):
+        Nm = np.array(N_eq + [-C[j] for j in act]).reshape(-1, n)     # constraint normals n^T x >= b form
+        m = Nm.shape[0]
+        K = np.zeros((n + m, n + m))
+        K[:n, :n], K[:n, n:], K[n:, :n] = H, -Nm.T, -Nm
+        try:
+            sol = np.linalg.solve(K, np.concatenate([rhs_x, rhs_c]))
+        except np.linalg.LinAlgError:
+            sol = np.linalg.lstsq(K, np.concatenate([rhs_x, rhs_c]), rcond=None)[0]
+        return sol[:n], sol[n:]
+
+    x, _ = kkt(-g, -b if A.shape[0] else np.zeros(0))
+    status = 2
+    for _ in range(max_iters):
+        s = d - C @ x                                          # slack, >= 0 when satisfied
+        if C.shape[0] == 0 or s.min() >= -tol * (1 + np.abs(d).max()):
+            status = 0
+            break
+        p = int(np.argmin(s))
+        n_p = -C[p]                                            # n_p^T x >= -d_p
+        u_p = 0.0
+        while True:
+            z, r = kkt(n_p, np.zeros(A.shape[0] + len(act)))   # primal direction, multiplier change
+            r_act = -r[A.shape[0]:]
+            t1, drop = np.inf, -1
+            for j, rj in enumerate(r_act):
+                if rj > 1e-14:
+                    tj = u[j] / rj
+                    if tj < t1:
+                        t1, drop = tj, j
+            nz = float(n_p @ z)
+            if np.abs(H @ z).max() <= 1e-9 * np.abs(n_p).max() or nz <= 0:     # dependent on the active set
+                if drop < 0:
+                    status = 1
+                    return x, status, float(max(0.0, -s.min()))
+                u = u - t1 * r_act
+                u_p += t1
+                del act[drop]
+                u = np.delete(u, drop)
+                continue
+            t2 = (C[p] @ x - d[p]) / nz                         # makes row p active
+            t = min(t1, t2)
+            x = x + t * z
+            u = u - t * r_act
+            u_p += t
+            if t2 <= t1:
+                act.append(p)
+                u = np.append(u, u_p)
+                break
+            del act[drop]
+            u = np.delete(u, drop)
+    viol = 0.0
+    if C.shape[0]:
+        viol = max(viol, float(max(0.0, (C @ x - d).max())))
+    if A.shape[0]:
+        viol = max(viol, float(np.abs(A @ x - b).max()))
+    return x, status, viol
+
+
+# ------------------------------------------------------------------------------------------------ one frame
+def _pose_batch(root: np.ndarray, q: np.ndarray, h: np.ndarray, eps: float, with_h: bool):
+    """Base point plus one forward-difference perturbation per variable (root twist, q, and h when ``with_h``)."""
+    D, H = q.shape[0], h.shape[0]
+    nv = 6 + D + (3 * H if with_h else 0)
+    Q = np.repeat(q[None], nv + 1, 0)
+    Rt = np.repeat(root[None], nv + 1, 0)
+    Hh = np.repeat(h[None], nv + 1, 0)
+    E = exp_rot(eps * np.eye(3))
+    for j in range(3):
+        Rt[1 + j, :3, :3] = E[j] @ root[:3, :3]
+        Rt[4 + j, j, 3] += eps
+    Q[7:7 + D] += eps * np.eye(D)
+    if with_h:
+        Hh[7 + D:] += eps * np.eye(3 * H).reshape(3 * H, H, 3)
+    return Q, Rt, Hh
+
+
+def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links: np.ndarray, forces: np.ndarray,
+                     active: np.ndarray, pose: np.ndarray, pose_prev: np.ndarray, normals_prev: np.ndarray,
+                     slide: np.ndarray, approach: dict, closing: np.ndarray, settle: bool = False) -> FrameResult:
+    """Eq. 8 at one frame (module docstring). returns: :class:`FrameResult` (its ``frame.p`` is None: the caller
+    projects E(q) h onto the object).
+
+    prev: the hand at frame k-1 (for Eq. 7, the velocity bounds and the proximal terms)
+    start: the initial guess (e.g. prev moved rigidly with the object); h of inactive contacts is kept
+    links: (H,) link index of each hand contact; forces: planned F_k, (H, 3), world newtons (0 where inactive)
+    active: (H,) bool, contacts that carry force at k
+    pose, pose_prev: object poses T_world_object at k and k-1, (4, 4)
+    normals_prev: object-frame normals into the object at p^{k-1}, (H, 3)
+    slide: (H,) bool, contacts that may slide (slid into k, or force on the cone boundary)
+    approach: contact -> gap bound sigma_j(k), metres, for added contacts not active yet
+    closing: (H,) bool, added contacts active from this frame on (no Eq. 7 rows yet)
+    settle: Eq. 7 as weighted residual rows (``SETTLE_WEIGHT``) instead of constraints: the first frame, where the
+        grasp's contacts settle onto the capsule model and a rigid no-slip grasp could not close their gaps
+
+    The hand point of a contact on a link with a capsule is parametrised by its position s in [0, 1] along the
+    capsule's axis: ``h = c(s) - r n``, c(s) the axis point and n the object's outward normal there (the capsule
+    point facing the object); Eq. 6 is then ``sd(c(s)) = r`` (the capsule touches the object), which is smooth at
+    the object's edges where ``sd(p) = 0`` is not. Links without a capsule keep their point.
+    """
+    st = ctx.settings
+    hand, D, H = ctx.hand, ctx.D, len(links)
+    N = 6 + D
+    nv = N + H
+    links = np.asarray(links, dtype=np.int64)
+    Rs, os_ = pose[:3, :3], pose[:3, 3]
+    dt = ctx.dt
+    ca, cb, cr = ctx.cap_a[links], ctx.cap_b[links], ctx.cap_r[links]
+    seg = cb - ca
+    seg_len = np.maximum(np.linalg.norm(seg, axis=-1), 1e-9)
+    movable = (cr > 0) & np.array([i not in approach for i in range(H)], dtype=bool)
+    # Eq. 7's offset at k-1 (zero when the contact was exact)
+    x_prev_mat = _points(hand, prev.q, prev.root, links, prev.h)
+    d0 = x_prev_mat - (prev.p @ pose_prev[:3, :3].T + pose_prev[:3, 3])
+    y_prev = prev.p @ Rs.T + os_                               # object material points at k
+    n_w = normals_prev @ Rs.T
+    f_t = forces - (forces * n_w).sum(-1, keepdims=True) * n_w
+    f_use = np.where(active[:, None], forces, 0.0)
+    w_q, w_x = st.prox_q, st.prox_x
+    wq = 1.0 if st.objective == "pose" else w_q
+    wx = 10.0 if st.objective == "pose" else w_x
+    R_prev = prev.root[:3, :3]
+    s_prev = _axis_param(ca, seg, prev.h)
+    base = np.concatenate([[0.02] * 3, [0.005] * 3, [0.05] * D, 0.002 / seg_len])
+    s_step = st.h_step * (10.0 if settle else 1.0) / seg_len  # settling may move h onto the capsule's facing side
+
+    def contact_points(q, root, s):
+        """Axis points c (H, 3) link frame, hand points h (H, 3) link frame, and the world quantities."""
+        c = ca + s[:, None] * seg
+        c = np.where(movable[:, None], c, start.h)
+        T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
+        Rl = T[links, :3, :3]
+        cw = np.einsum("hij,hj->hi", Rl, c) + T[links, :3, 3]
+        return c, cw, T
+
+    def linearise(q, root, s):
+        """Residuals, constraints and bounds at (q, root, s); also the hand points h."""
+        c, cw, T = contact_points(q, root, s)
+        Rl = T[links, :3, :3]
+        ax_w = np.einsum("pij,pj->pi", T[ctx.ax_link, :3, :3], ctx.ax_local) + T[ctx.ax_link, :3, 3]
+        qpts = np.concatenate([cw, ax_w], 0)
+        sd, grad = ctx.sdf.query_with_grad(torch.as_tensor(((qpts - os_) @ Rs)[None]))
+        sd, grad = sd[0].numpy(), grad[0].numpy() @ Rs.T          # world gradient
+        sd_c, g_c, sd_a, g_a = sd[:H], grad[:H], sd[H:], grad[H:]
+        n_c = g_c / np.maximum(np.linalg.norm(g_c, axis=-1, keepdims=True), 1e-12)
+        h = np.where(movable[:, None], c - cr[:, None] * np.einsum("hji,hj->hi", Rl, n_c), start.h)
+        # ---- the objective residual and its Jacobian (forward differences, one batched call)
+        if st.objective == "torque":
+            Qb, Rb, Hb = _pose_batch(root, q, h, 1e-7, False)
+            Hs = np.repeat(h[None], H, 0)
+            Hs[np.arange(H), np.arange(H)] += 1e-7 * seg
+            ub = torques(hand, np.concatenate([Qb, np.repeat(q[None], H, 0)]),
+                         np.concatenate([Rb, np.repeat(root[None], H, 0)]), links, np.concatenate([Hb, Hs]), f_use,
+                         ctx.gravity)
+            r = ub[0] - ctx.u_bar
+            Jr = ((ub[1:] - ub[0]) / 1e-7).T
+            Jr[:, N:] *= movable[None]
+        else:
+            r, Jr = np.zeros(0), np.zeros((0, nv))
+        rv = rotvec(root[:3, :3] @ R_prev.T)
+        pr = np.concatenate([wq * rv, wx * (root[:3, 3] - prev.root[:3, 3]), wq * (q - prev.q),
+                             st.prox_h * seg_len * (s - s_prev)])
+        Jp = np.diag(np.concatenate([np.full(3, wq), np.full(3, wx), np.full(D, wq), st.prox_h * seg_len]))
+        # ---- kinematics of the points involved
+        pts_local = np.concatenate([c, prev.h, ctx.ax_local], 0)
+        pts_link = np.concatenate([links, links, ctx.ax_link])
+        J_all = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(pts_link), torch.as_tensor(pts_local),
+                                    torch.as_tensor(root)[None], wrt_root=True)[0].numpy()
+        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:]
+        xm = np.einsum("hij,hj->hi", Rl, prev.h) + T[links, :3, 3]
+        A_rows, b_rows, C_rows, d_rows = [], [], [], []
+        eq_viol, in_viol, soft_r, soft_J = [], [], [], []
+        w_rows = []
+        for i in range(H):
+            Jcf = np.zeros((3, nv))
+            Jcf[:, :N] = Jc[i]
+            if movable[i]:
+                Jcf[:, N + i] = Rl[i] @ seg[i]
+            if i in approach:                                   # receding slack towards its object point
+                gap = cw[i] - cr[i] * 0 - (prev.p[i] @ Rs.T + os_)
+                gn = np.linalg.norm(gap)
+                if gn > 1e-9:
+                    C_rows.append(gap / gn @ Jcf)
+                    d_rows.append(approach[i] - gn)
+                    in_viol.append(gn - approach[i])
+                continue
+            if not active[i]:
+                continue
+            if movable[i]:                                      # Eq. 6: the capsule touches the object
+                A_rows.append(g_c[i] @ Jcf)
+                b_rows.append(cr[i] - sd_c[i])
+                eq_viol.append(abs(cr[i] - sd_c[i]))
+                w_rows.append(TOUCH_WEIGHT)
+            else:
+                A_rows.append(g_c[i] @ Jcf)
+                b_rows.append(-sd_c[i])
+                eq_viol.append(abs(sd_c[i]))
+                w_rows.append(TOUCH_WEIGHT)
+            if closing[i]:
+                continue
+            # Eq. 7 on the material points of h^{k-1}
+            rel = xm[i] - y_prev[i] - d0[i]
+            Jrel = _pad(Jm[i], nv)
+            t1, t2 = _tangents(n_w[i])
+            ft = f_t[i]
+            if slide[i] and np.linalg.norm(ft) > 1e-9:
+                fhat = ft / np.linalg.norm(ft)
+                t3 = np.cross(n_w[i], fhat)
+                A_rows.append(t3 @ Jrel)
+                b_rows.append(-t3 @ rel)
+                eq_viol.append(abs(t3 @ rel))
+                w_rows.append(ELASTIC_WEIGHT)
+                C_rows.append(-fhat @ Jrel)
+                d_rows.append(fhat @ rel)
+                in_viol.append(-fhat @ rel)
+            elif settle:                                         # soft: weighted residual rows
+                for t in (t1, t2):
+                    soft_r.append(SETTLE_WEIGHT * (t @ rel))
+                    soft_J.append(SETTLE_WEIGHT * (t @ Jrel))
+            else:
+                for t in (t1, t2):
+                    A_rows.append(t @ Jrel)
+                    b_rows.append(-t @ rel)
+                    eq_viol.append(abs(t @ rel))
+                    w_rows.append(ELASTIC_WEIGHT)
+        # non-penetration of the capsule axes (object and table); only points within 1 cm of their limit
+        ax_r = ctx.ax_radius
+        lim_obj = sd_a - ax_r
+        lb = np.minimum(-st.margin, lim_obj)
+        for j in np.flatnonzero(lim_obj < 0.01):
+            C_rows.append(-(g_a[j] @ _pad(Ja[j], nv)))
+            d_rows.append(lim_obj[j] - lb[j])
+        if ctx.table is not None:
+            lim_tab = ax_w[:, 2] - ax_r - ctx.table
+            lbt = np.minimum(-st.margin, lim_tab)
+            for j in np.flatnonzero(lim_tab < 0.01):
+                C_rows.append(-_pad(Ja[j], nv)[2])
+                d_rows.append(lim_tab[j] - lbt[j])
+        # bounds: joint limits and speeds, root speeds, the axis parameter
+        dq_max = st.joint_speed * dt
+        lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
+        hi = np.maximum(np.minimum(ctx.q_hi, prev.q + dq_max) - q, 0.0)
+        s_lo = np.minimum(np.maximum(0.0, s_prev - s_step) - s, 0.0)
+        s_hi = np.maximum(np.minimum(1.0, s_prev + s_step) - s, 0.0)
+        vlo = np.concatenate([np.minimum(-st.root_rate * dt - rv, 0.0),
+                              np.minimum(prev.root[:3, 3] - st.root_speed * dt - root[:3, 3], 0.0), lo, s_lo])
+        vhi = np.concatenate([np.maximum(st.root_rate * dt - rv, 0.0),
+                              np.maximum(prev.root[:3, 3] + st.root_speed * dt - root[:3, 3], 0.0), hi, s_hi])
+        objective = float(r @ r) if st.objective == "torque" else float(((q - prev.q) ** 2).sum() + (rv ** 2).sum())
+        if soft_r:
+            pr, Jp = np.concatenate([pr, soft_r]), np.concatenate([Jp, np.array(soft_J)], 0)
+        viol = max([0.0] + [float(v) for v in eq_viol] + [float(v) for v in in_viol])
+        merit = (float(r @ r) + float(pr @ pr) + float(np.dot(w_rows, eq_viol))
+                 + ELASTIC_WEIGHT * sum(max(0.0, v) for v in in_viol))
+        return dict(r=r, Jr=Jr, pr=pr, Jp=Jp, A=np.array(A_rows).reshape(-1, nv), b=np.array(b_rows), w=np.array(w_rows),
+                    C=np.array(C_rows).reshape(-1, nv), d=np.array(d_rows), vlo=vlo, vhi=vhi, h=h,
+                    gap=np.where(movable, sd_c - cr, sd_c),
+                    objective=objective, viol=viol, merit=merit)
+
+    damp = np.diag(1.0 / base ** 2)
+
+    def qp(L, lm, project=False):
+        """The step: Gauss-Newton QP damped by ``lm`` (Levenberg-Marquardt, scaled by the per-iteration step sizes
+        ``base``), or, with ``project``, the least-norm step onto the constraints."""
+        if project:
+            Hm, g = damp.copy(), np.zeros(nv)
+        else:
+            Hm = 2 * (L['Jr'].T @ L['Jr'] + L['Jp'].T @ L['Jp']) + lm * damp
+            g = 2 * (L['Jr'].T @ L['r'] + L['Jp'].T @ L['pr'])
+        lo, hi = np.maximum(L['vlo'], -4 * base), np.minimum(L['vhi'], 4 * base)
+        C = np.concatenate([L['C'], np.eye(nv), -np.eye(nv)], 0)
+        d = np.concatenate([L['d'], hi, -lo])
+        dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
+        if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities
+            A, b = L['A'], L['b']
+            m = A.shape[0]
+            He = np.zeros((nv + 2 * m, nv + 2 * m))
+            He[:nv, :nv] = Hm
+            He[nv:, nv:] = 1e-9 * np.eye(2 * m)
+            ge = np.concatenate([g, L['w'], L['w']])
+            Ae = np.concatenate([A, np.eye(m), -np.eye(m)], 1)
+            Ce = np.zeros((C.shape[0] + 2 * m, nv + 2 * m))
+            Ce[:C.shape[0], :nv] = C
+            Ce[C.shape[0]:, nv:] = -np.eye(2 * m)
+            de = np.concatenate([d, np.zeros(2 * m)])
+            dx = dense_qp(He, ge, Ae, b, Ce, de)[0][:nv]
+        return dx
+
+    def apply(x, dx):
+        q, root, s = x
+        root = root.copy()
+        root[:3, :3] = exp_rot(dx[:3]) @ root[:3, :3]
+        root[:3, 3] = root[:3, 3] + dx[3:6]
+        return q + dx[6:N], root, np.clip(s + dx[N:], 0.0, 1.0)
+
+    x = (start.q.copy(), start.root.copy(), _axis_param(ca, seg, start.h))
+    L = linearise(*x)
+    lm, it, converged = 1e-5, 0, False
+    max_iters = st.max_iters * (3 if settle else 1)        # the first frame starts farther from feasibility
+    while it < max_iters:
+        it += 1
+        dx = qp(L, lm)
+        xn = apply(x, dx)
+        Ln = linearise(*xn)
+        if Ln['merit'] > L['merit'] * (1 + 1e-12) + 1e-15:
+            lm *= 10.0                                     # backtrack: more damping, a shorter step
+            if lm > 1e3:
+                break
+            continue
+        x, L = xn, Ln
+        lm = max(lm / 3.0, 1e-9)
+        if np.abs(dx).max() <= st.step_tol:
+            converged = True
+            break
+    for _ in range(4):                                    # restore the constraints (least-norm steps)
+        if L['viol'] <= 1e-9:
+            break
+        x = apply(x, qp(L, 0.0, project=True))
+        L = linearise(*x)
+    q, root, _ = x
+    return FrameResult(frame=HandFrame(q=q, root=root, h=L['h'], p=None), objective=L['objective'], iterations=it,
+                       converged=converged, violation=L['viol'], gap=L['gap'])
+
+
+def _axis_param(a: np.ndarray, seg: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Position in [0, 1] along each capsule axis (a + s seg) of the points h (H, 3), link frame."""
+    return np.clip(((h - a) * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18), 0.0, 1.0)
+
+
+def _pad(J: np.ndarray, nv: int) -> np.ndarray:
+    out = np.zeros(J.shape[:-1] + (nv,))
+    out[..., :J.shape[-1]] = J
+    return out
+
+
+def _tangents(n: np.ndarray):
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = np.cross(n, a)
+    t1 /= np.linalg.norm(t1)
+    return t1, np.cross(n, t1)
+
+
+def _points(hand, q, root, links, local) -> np.ndarray:
+    """World positions of link-frame points, (P, 3)."""
+    if len(links) == 0:
+        return np.zeros((0, 3))
+    T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
+    Tl = T[np.asarray(links)]
+    return np.einsum("pij,pj->pi", Tl[:, :3, :3], local) + Tl[:, :3, 3]
