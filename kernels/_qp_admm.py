@@ -15,12 +15,14 @@ Method (Stellato et al. 2020, "OSQP: an operator splitting solver for quadratic 
   The (n, n) matrix is factorised once per problem and inverted (Cholesky); it changes only when rho does.
 * Every ``check_every`` iterations (the only host syncs), per problem, with masks:
   - converged: OSQP's test on the unscaled residuals, r_p <= tol (1 + max(|Cx|, |z|)) and
-    r_d <= tol (1 + max(|Qx|, |C^T y|, |q|)) (infinity norms);
+    r_d <= tol (1 + max(|Qx|, |C^T y|, |q|)) (infinity norms), plus complementarity and multiplier signs row by
+    row and the complementarity gap (:func:`_complementary`; ADMM's own iterates satisfy it by construction,
+    an interior point or a polished point need not);
   - polished: an active set guessed from (z, y) (row i active when u_i - z_i < y_i, l_i - z_i > y_i, or
     l_i = u_i), then the equality-constrained KKT system [[Q, C_a^T], [C_a, 0]] solved by iterative refinement
     around a delta-regularised factorisation (Schur complement Q + delta I + C_a^T C_a / delta, so only an
     (n, n) Cholesky), started at the ADMM point. The polished point counts only when it passes the converged test
-    above with the sign conditions of the multipliers; otherwise ADMM goes on (no harm done);
+    above (which includes the sign conditions of the multipliers); otherwise ADMM goes on (no harm done);
   - primal infeasible: OSQP's certificate dy = y_k - y_{k-1} (signs projected: dy_i >= 0 where l_i = -inf),
     |C^T dy| <= eps_inf |dy| and u^T dy_+ + l^T dy_- <= -eps_inf |dy| on the scaled problem;
   - unbounded (dual infeasible): dx = x_k - x_{k-1} with |Q dx| <= eps_inf |dx|, q^T dx <= -eps_inf |dx| and
@@ -135,9 +137,43 @@ def _residuals(P: _Scaled, x, z, y):
     return r_p, r_d, size_p, size_d
 
 
+def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d):
+    """Complementarity and multiplier signs at (x, y), unscaled, per problem (B,) bool.
+
+    With slacks s_u = u - Cx and s_l = Cx - l (inf where the bound is absent) and the multiplier's size in gradient
+    units |y_i| |C_i|_inf: every one-sided or two-sided row must have y_i = 0 within the dual tolerance
+    (|y_i| |C_i|_inf <= tol (1 + size_d)) or sit at the bound its sign pushes on within the primal tolerance
+    (y_i > 0: s_u <= tol (1 + size_p); y_i < 0: s_l <= tol (1 + size_p)); a wrong-sign multiplier (y_i > 0 on a
+    row without upper bound) has infinite slack and fails. And the complementarity gap
+    |sum_i y_i^+ s_u,i + y_i^- s_l,i| (the IPM's lam^T (h - G z)) must be below tol (1 + the largest of
+    |x^T Q x|, |q^T x|, sum_i |y_i (Cx)_i|, sum_i |y_i b_i|), b_i the bound y_i pushes on. Equality rows
+    (l = u) are exempt. The residual tests alone miss a point whose lam and slack are both ~sqrt(mu)."""
+    Einv = 1 / P.E
+    cinv = (1 / P.c).unsqueeze(-1)
+    Cx, u, l = _mv(P.C, x) * Einv, P.u * Einv, P.l * Einv
+    yu = y * P.E * cinv
+    rown = (P.C.abs() / P.D.unsqueeze(1)).amax(-1) * Einv if P.C.shape[2] else torch.zeros_like(u)
+    pos, neg = yu > 0, yu < 0
+    inf = torch.full_like(u, float("inf"))
+    bound = torch.where(pos, u, torch.where(neg, l, torch.zeros_like(u)))
+    slack = torch.where(pos, u - Cx, torch.where(neg, Cx - l, torch.zeros_like(u)))
+    slack = torch.where(torch.isfinite(bound), slack, inf)
+    eps_p, eps_d = (tol * (1 + s_p)).unsqueeze(-1), (tol * (1 + s_d)).unsqueeze(-1)
+    row_ok = P.eq | (slack <= eps_p) | (yu.abs() * rown <= eps_d)
+    ay = yu.abs()
+    fin = torch.isfinite(slack) & ~P.eq
+    gap = torch.where(fin, ay * slack, torch.zeros_like(u)).sum(-1)
+    Qx = _mv(P.Q, x)
+    scale = torch.maximum(torch.maximum((x * Qx).sum(-1).abs(), (P.q * x).sum(-1).abs()) * cinv.squeeze(-1),
+                          torch.maximum(torch.where(fin, ay * Cx.abs(), torch.zeros_like(u)).sum(-1),
+                                        torch.where(fin, ay * bound.abs(), torch.zeros_like(u)).sum(-1)))
+    return row_ok.all(-1) & (gap.abs() <= tol * (1 + scale))
+
+
 def _converged(P: _Scaled, x, z, y, tol: float):
+    """The converged test: OSQP's residual test plus :func:`_complementary`, per problem (B,) bool."""
     r_p, r_d, s_p, s_d = _residuals(P, x, z, y)
-    return (r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d))
+    return (r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d)) & _complementary(P, x, y, tol, s_p, s_d)
 
 
 def _active(P: _Scaled, z, y):
@@ -168,12 +204,42 @@ def _polish(P: _Scaled, x, y, act, lo, up, s: AdmmSettings):
     zp = torch.minimum(torch.maximum(Cx, P.l), P.u)
     # Multiplier signs: y >= 0 on upper-active rows, <= 0 on lower-active rows (equality rows free), in the
     # dual tolerance; then the same converged test as ADMM's.
-    r_p, r_d, s_p, s_d = _residuals(P, xp, zp, yp)
-    ysc = yp * P.E / P.c.unsqueeze(-1)
-    bad_sign = torch.where(P.eq, torch.zeros_like(ysc), torch.where(up, (-ysc).clamp_min(0), ysc.clamp_min(0)))
-    ok = (info == 0) & (r_p <= s.tol * (1 + s_p)) & (r_d <= s.tol * (1 + s_d)) & (_amax(bad_sign) <= s.tol * (1 + s_d))
+    ok = (info == 0) & _converged(P, xp, zp, yp, s.tol)
     ok &= torch.isfinite(xp).all(-1) & torch.isfinite(yp).all(-1)
     return ok, xp, zp, yp
+
+
+def _polish_corrected(P: _Scaled, x, y, act, lo, up, s: AdmmSettings, rounds: int):
+    """:func:`_polish` with up to ``rounds - 1`` active-set corrections, for guesses from an interior point (whose
+    degenerate rows have lam and slack both ~sqrt(mu), so lam > slack is a coin flip there): after a polish that
+    fails, upper-active rows with y < 0 (lower-active with y > 0) leave the active set and inactive rows that the
+    polished point violates join it (a primal-dual active-set step), then the polish is repeated on those
+    problems only. The first polished point that passes :func:`_converged` is kept. One host sync per round.
+    Returns (ok (B,), x, z, y)."""
+    ok, bx, bz, by = _polish(P, x, y, act, lo, up, s)
+    j = torch.arange(x.shape[0], device=x.device)
+    okj, xp, yp = ok, bx, by
+    for _ in range(rounds - 1):
+        k = (~okj).nonzero().squeeze(-1)                         # host sync: once per round
+        if k.numel() == 0:
+            break
+        j, Pk = j.index_select(0, k), _Scaled(*(t.index_select(0, k) for t in P))
+        xp, yp, act, lo, up = (t.index_select(0, k) for t in (xp, yp, act, lo, up))
+        Cx = _mv(Pk.C, xp)
+        one = ~Pk.eq
+        wrong_up, wrong_lo = up & one & (yp < 0), lo & one & (yp > 0)
+        up = (up & ~wrong_up) | (~act & (Cx > Pk.u))
+        lo = (lo & ~wrong_lo) | (~act & (Cx < Pk.l))
+        act = Pk.eq | up | lo
+        xs = torch.where(torch.isfinite(xp), xp, x.index_select(0, j))
+        ys = torch.where(torch.isfinite(yp), yp, y.index_select(0, j))
+        okj, xp, zp, yp = _polish(Pk, xs, ys, act, lo, up, s)
+        ok = ok.index_copy(0, j, okj)
+        m = okj.unsqueeze(-1)
+        bx = bx.index_copy(0, j, torch.where(m, xp, bx.index_select(0, j)))
+        bz = bz.index_copy(0, j, torch.where(m, zp, bz.index_select(0, j)))
+        by = by.index_copy(0, j, torch.where(m, yp, by.index_select(0, j)))
+    return ok, bx, bz, by
 
 
 def _primal_infeasible(P: _Scaled, dy: torch.Tensor, eps: float):

@@ -9,8 +9,10 @@ Cholesky factorisation and a Schur complement on the equality rows (with a small
 rows give dnu = 0), once for the affine (predictor) and once for the centred (corrector) direction (Mehrotra
 1992; as in CVXOPT's coneqp and qpth). Rows of G with few non-zeros in the same columns across the batch (bounds,
 the normal-force rows of a window QP) are kept sparse: G x, G^T v and G^T D G are formed by gather / scatter, not
-by dense products. Convergence uses the relative test of :mod:`._qp_admm` plus a complementarity gap test;
-infeasibility a Farkas test on the normalised multipliers (see :func:`ipm`). One host sync per iteration;
+by dense products. It stops on the relative residual test of :mod:`._qp_admm` plus a duality gap test
+(``stopped``); whether its point, or the polish started from it, is CONVERGED is decided by :mod:`.convex_qp`
+with the full test (complementarity row by row, multiplier signs). Infeasibility: a Farkas test on the normalised
+multipliers (see :func:`ipm`). One host sync per iteration;
 decided problems leave the working set. Takes about 10-20 iterations on the window QPs, also at the edge of
 feasibility where ADMM stalls; it cannot use warm starts (ADMM does).
 """
@@ -26,7 +28,7 @@ class IpmOutput(NamedTuple):
     x: torch.Tensor           # (B, n)
     lam: torch.Tensor         # (B, nineq) >= 0; the certificate's part (|(lam, nu)|_inf = 1) when infeasible
     nu: torch.Tensor          # (B, neq)
-    converged: torch.Tensor   # (B,) bool
+    stopped: torch.Tensor     # (B,) bool: residuals and duality gap small (not yet the full test: see :func:`ipm`)
     infeasible: torch.Tensor  # (B,) bool: (lam, nu) is a Farkas certificate (see :func:`ipm`)
     iterations: torch.Tensor  # (B,) int32
 
@@ -113,7 +115,11 @@ def _gtdg(sp: _SparseRows, D: torch.Tensor, Q: torch.Tensor, delta: float) -> to
 
 def ipm(Q, q, G, h, A, b, *, tol: float, eps_inf: float, max_iters: int = 50, delta: float = 1e-10,
         eps: float = 1e-12) -> IpmOutput:
-    """Solve the B problems to the relative tolerance ``tol`` (the converged test of :mod:`._qp_admm`).
+    """Iterate the B problems until the relative residual test of :mod:`._qp_admm` (tolerance ``tol``) holds and the
+    mean complementarity s^T lam / m is below ``tol (1 + |objective|)`` (``stopped``). That is not the full
+    converged test: at a degenerate optimum (several optimal points, or rows with lam = slack = 0) some rows then
+    still have lam and slack both ~sqrt(mu), so lam^T (G x - h) is far from 0 relative to the objective; the
+    caller polishes (:func:`.convex_qp._ipm_then_polish`) and applies the full test.
 
     Infeasibility: on an infeasible problem the multipliers grow along a Farkas direction. Every iteration the
     normalised (lam, nu) is tested: with e = G^T lam + A^T nu and g = -(h^T lam + b^T nu), ``g > 0`` and
@@ -210,5 +216,5 @@ def _ipm(Q, q, G, h, A, b, tol, eps_inf, max_iters, delta, eps) -> IpmOutput:
         nu = nu + a * dnu if neq else nu
     bad = ~(torch.isfinite(out_x).all(-1) & torch.isfinite(out_lam).all(-1) & torch.isfinite(out_nu).all(-1))
     out_x, out_lam, out_nu = (torch.nan_to_num(t, nan=0.0, posinf=0.0, neginf=0.0) for t in (out_x, out_lam, out_nu))
-    return IpmOutput(x=out_x, lam=out_lam, nu=out_nu, converged=out_conv & ~bad, infeasible=out_inf & ~bad,
+    return IpmOutput(x=out_x, lam=out_lam, nu=out_nu, stopped=out_conv & ~bad, infeasible=out_inf & ~bad,
                      iterations=out_it)

@@ -23,7 +23,7 @@ Steps
 
        * :mod:`._qp_ipm`: a batched Mehrotra predictor-corrector interior-point method (10-20 iterations on the
          window QPs, also at the edge of feasibility), whose growing multipliers give Farkas certificates on
-         infeasible problems; its point is then polished (below);
+         infeasible problems; its point is then polished (below, with active-set corrections);
        * :mod:`._qp_admm`: OSQP-style ADMM (Stellato et al. 2020) with per-problem convergence, infeasibility and
          unboundedness tests every ``check_every`` iterations, residual balancing of rho, and an active-set
          polish (equality-constrained KKT solve by iterative refinement), so converged answers are accurate to
@@ -35,9 +35,15 @@ Steps
 
 Statuses (per problem, :class:`~.status.SolverStatus`)
     * CONVERGED: unscaled residuals r_p = |Cz - proj(Cz)|_inf and r_d = |Qz + p + G^T lam + A^T nu|_inf are
-      below ``tol * (1 + size)`` (OSQP's relative test, ``tol`` per dtype in :func:`qp_tolerances`), for the
-      polished point (whose multipliers must also have the right signs), the ADMM point, or the interior point
-      (whose complementarity gap must also be below ``tol * (1 + |objective|)``).
+      below ``tol * (1 + size)`` (OSQP's relative test, ``tol`` per dtype in :func:`qp_tolerances`) AND
+      complementarity holds (:func:`._qp_admm._complementary`): row by row, lam_i |G_i|_inf <= tol (1 + size_d)
+      or the slack h_i - G_i z <= tol (1 + size_p) (so a wrong-sign multiplier fails), and
+      |lam^T (G z - h)| <= tol (1 + the largest term of the objective and of lam^T G z, lam^T h). This holds for
+      every path: the polished point, the ADMM point, or the interior point itself. The interior point stops on
+      residuals and the mean gap s^T lam / m; at a degenerate optimum (the window QPs' pyramids) some rows then
+      have lam and slack both ~sqrt(mu), which the residuals and that gap do not see, so its point goes to the
+      polish, whose active set (lam_i > slack_i) is corrected up to four times (rows with wrong-sign multipliers
+      leave, violated rows join); when that fails too, ADMM continues from the interior point.
     * INFEASIBLE: the range test failed, or a Farkas certificate was found: (lam, nu) are then that certificate,
       scaled to |.|_inf = 1, with lam >= 0 and h^T lam + b^T nu < 0 (for any feasible z,
       (G^T lam + A^T nu)^T z <= h^T lam + b^T nu). From the interior point: |G^T lam + A^T nu|_inf <=
@@ -61,7 +67,7 @@ from typing import NamedTuple
 
 import torch
 
-from ._qp_admm import AdmmOutput, AdmmSettings, _active, _polish, _Scaled, admm
+from ._qp_admm import AdmmOutput, AdmmSettings, _active, _converged, _polish_corrected, _Scaled, admm
 from ._qp_ipm import ipm
 from .status import SolverStatus
 
@@ -71,6 +77,7 @@ __all__ = ["ConvexQPResult", "QPTolerances", "qp_tolerances", "reduce_equalities
 _CONVERGED = int(SolverStatus.CONVERGED)
 _INFEASIBLE = int(SolverStatus.INFEASIBLE)
 _INVALID = int(SolverStatus.INVALID_INPUT)
+_POLISH_ROUNDS = 4        # active-set corrections of the interior point's polish
 
 
 @dataclass(frozen=True)
@@ -211,22 +218,31 @@ def _rows(M, name: str, B: int, nz: int) -> int:
 
 
 def _ipm_then_polish(Q, q, C, lo, up, nineq: int, s: AdmmSettings, ipm_iters: int):
-    """Interior point on (Q, q, C, lo, up), then the active-set polish from its point.
-    Returns (x, y, status (int8), iterations)."""
+    """Interior point on (Q, q, C, lo, up), then the active-set polish from its point (with active-set
+    corrections, :func:`._qp_admm._polish_corrected`).
+
+    CONVERGED only for a point that passes the full test of :func:`._qp_admm._converged` (residuals,
+    complementarity, multiplier signs): the polished point, or else the interior point itself. The interior point
+    stops on residuals and a small duality gap; at a degenerate optimum (the window QPs' pyramids leave faces of
+    optimal points) some rows then have lam and slack both ~sqrt(mu), so its own point usually fails that test
+    and the polish decides.
+    Returns (x, y, status (int8), iterations, close (B,) bool: the interior point stopped near an optimum, a
+    good ADMM start when the polish failed)."""
     res = ipm(Q, q, C[:, :nineq], up[:, :nineq], C[:, nineq:], up[:, nineq:], tol=s.tol, eps_inf=s.eps_inf,
               max_iters=ipm_iters)
     x, y = res.x, torch.cat([res.lam, res.nu], 1)
     one = torch.ones_like
     P = _Scaled(Q=Q, q=q, C=C, l=lo, u=up, eq=lo == up, D=one(q), E=one(lo), c=one(q[:, 0]))
     z = torch.minimum(torch.maximum(torch.bmm(C, x.unsqueeze(-1)).squeeze(-1), lo), up)
+    raw = res.stopped & _converged(P, x, z, y, s.tol)
     act, lo_a, up_a = _active(P, z, y)
-    ok, xp, _, yp = _polish(P, x, y, act, lo_a, up_a, s)
+    ok, xp, _, yp = _polish_corrected(P, x, y, act, lo_a, up_a, s, _POLISH_ROUNDS)
     ok = ok & ~res.infeasible
     x = torch.where(ok.unsqueeze(-1), xp, x)
     y = torch.where(ok.unsqueeze(-1), yp, y)
-    st = torch.where(ok | res.converged, int(SolverStatus.CONVERGED),
+    st = torch.where(ok | raw, int(SolverStatus.CONVERGED),
                      torch.where(res.infeasible, int(SolverStatus.INFEASIBLE), int(SolverStatus.MAX_ITERATIONS)))
-    return x, y, st.to(torch.int8), res.iterations
+    return x, y, st.to(torch.int8), res.iterations, res.stopped & ~(ok | raw)
 
 
 def _solve(Q, q, C, lo, up, nineq: int, x0, y0, s: AdmmSettings, warm: bool, fallback_after: int,
@@ -241,17 +257,21 @@ def _solve(Q, q, C, lo, up, nineq: int, x0, y0, s: AdmmSettings, warm: bool, fal
             return out
         rest_iters = s.max_iters - fallback_after
     else:
-        x, y, st, it = _ipm_then_polish(Q, q, C, lo, up, nineq, s, ipm_iters)
+        x, y, st, it, close = _ipm_then_polish(Q, q, C, lo, up, nineq, s, ipm_iters)
         out = AdmmOutput(x=x, y=y, status=st, iterations=it)
         rest_iters = s.max_iters
+        # ADMM continues from the interior point where it stopped near an optimum (its polish failed)
+        cl = close.unsqueeze(-1)
+        x0, y0 = torch.where(cl, x, x0), torch.where(cl, y, y0)
     pending = out.status == MAXIT
     if not bool(pending.any()):                                     # host sync: once
         return out
     j = pending.nonzero().squeeze(-1)
     x_all, y_all, status, iters = out.x, out.y, out.status, out.iterations
     if warm:
-        x, y, st, it = _ipm_then_polish(*(t.index_select(0, j) for t in (Q, q, C, lo, up)), nineq, s, ipm_iters)
-        keep = (st == MAXIT).unsqueeze(-1)
+        x, y, st, it, close = _ipm_then_polish(*(t.index_select(0, j) for t in (Q, q, C, lo, up)), nineq, s,
+                                               ipm_iters)
+        keep = ((st == MAXIT) & ~close).unsqueeze(-1)      # ADMM goes on from the interior point when it is close
         x_all = x_all.index_copy(0, j, torch.where(keep, x_all.index_select(0, j), x))
         y_all = y_all.index_copy(0, j, torch.where(keep, y_all.index_select(0, j), y))
         status = status.index_copy(0, j, st)

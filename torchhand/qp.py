@@ -59,8 +59,9 @@ A faster path: ``method="admm"``
     point and OSQP-style ADMM with polishing; positive semidefinite ``Q`` and rank-deficient ``A``
     accepted, the latter reduced with a range test) behind the same validation and result types. It is much
     faster than qpth at the sizes of Liu 2009's window QPs, is not differentiable (results are detached) and
-    decides INFEASIBLE from the kernel's Farkas certificates (see :func:`_solve_qp_admm`,
-    :func:`_lp_feasible_admm`).
+    decides INFEASIBLE from the kernel's Farkas certificates; its feasibility witness must violate no unit row by
+    more than ``tol * (1 + |h|_inf + |b|_inf)``, a bound that does not grow with the iterate (see
+    :func:`_solve_qp_admm`, :func:`_lp_feasible_admm`).
 """
 
 from __future__ import annotations
@@ -122,7 +123,9 @@ class QPResult:
 class FeasibilityResult:
     """Feasibility of B polyhedra ``{z : G z <= h, A z = b}`` decided by :func:`lp_feasible`.
 
-    feasible:         (B,) bool; True iff ``violation <= tol * (1 + |z|_inf)`` (z is the witness)
+    feasible:         (B,) bool; True iff ``violation <= tol * (1 + |z|_inf)`` (method "qpth": z is the ridge-
+                      regularised least-violation point) or ``violation <= tol * (1 + |h|_inf + |b|_inf)`` with
+                      unit rows (method "admm": a bound that does not grow with the iterate); z is the witness
     z:                least-violation point of the phase-1 QP, (B, nz), units of z
     violation:        largest violation of a unit-normalised row at z, (B,), units of z
     certified_radius: no feasible point has |z'|_2 below this, (B,), units of z; 0 when feasible or
@@ -486,7 +489,8 @@ def lp_feasible(
         G: (B, nineq, nz); h: (B, nineq) (units of G z)
         A: (B, neq, nz) or None; b: (B, neq) or None
         ridge: weight of ``|z|^2 / 2`` in the phase-1 objective (> 0; with unit-norm rows)
-        tol: relative violation tolerance: feasible iff violation <= tol * (1 + |z|_inf)
+        tol: violation tolerance: feasible iff violation <= tol * (1 + |z|_inf) (qpth) or
+            tol * (1 + |h|_inf + |b|_inf) on the unit-row data (admm)
         max_iters: interior-point iterations (method "qpth")
         method: "qpth" (the phase-1 QP of the module docstring) or "admm" (:func:`_lp_feasible_admm`)
 
@@ -633,36 +637,56 @@ def _lp_feasible_admm(Gn, hn, An, bn, finite, tol: float, dt) -> FeasibilityResu
     """``lp_feasible(..., method="admm")`` on the unit-row float64 data (B, nineq, nz), (B, neq, nz).
 
     The kernel solves ``min 0  s.t.  Gn z <= hn, An z = bn`` (equality rows reduced with its range test). Decision,
-    per problem:
+    per problem, with the data's scale ``S = 1 + |hn|_inf + |bn|_inf`` (unit rows: hn, bn and the violation are
+    distances in the units of z):
 
-    * feasible (status CONVERGED) iff the largest unit-row violation at the kernel's z is <= tol (1 + |z|_inf),
-      measured here, whatever the kernel's status (z is the witness);
+    * feasible (status CONVERGED) iff the largest unit-row violation at the kernel's z is <= tol S, measured here,
+      whatever the kernel's status (z is the witness). The bound does not grow with z: on a nearly infeasible
+      system the kernel's iterate drifts far out along the set's recession directions (|z| ~ 1e11 on the
+      planner's frames), and a bound tol (1 + |z|_inf) then accepted violations of millimetres;
     * INFEASIBLE iff the kernel returned INFEASIBLE with a Farkas pair (lam >= 0, nu) whose
       ``g = -(hn^T lam + bn^T nu) > 0``; then ``certified_radius = g / |Gn^T lam + An^T nu|_2`` (inf when that
       is 0, e.g. the range test's certificate): no feasible point is closer to the origin;
-    * MAX_ITERATIONS (feasible False) otherwise.
+    * neither: solved once more (interior point first, with four times its iterations and twice ADMM's), then
+      MAX_ITERATIONS (feasible False) for what stays undecided.
 
     ``z`` is the kernel's last iterate (not the least-violation point of the qpth method).
     """
-    from .kernels.convex_qp import solve_convex_qp
+    from .kernels.convex_qp import qp_tolerances, solve_convex_qp
 
     B, nineq, nz = Gn.shape
     f64, dev = Gn.dtype, Gn.device
     neq = An.shape[1]
-    with torch.no_grad():
-        res = solve_convex_qp(Gn.new_zeros(B, nz, nz), Gn.new_zeros(B, nz), Gn if nineq else None,
-                              hn if nineq else None, An if neq else None, bn if neq else None, tol=min(tol, 1e-6))
-        z = res.z
-        viol, _ = _witness_and_certificate(Gn, hn, An, bn, z)
-        feas = finite & (viol <= tol * (1 + z.abs().amax(1)))
+    mv = lambda M, v: (M @ v.unsqueeze(-1)).squeeze(-1)  # noqa: E731
+    zero = torch.zeros((), dtype=f64, device=dev)
+    scale = 1 + (hn.abs().amax(1) if nineq else zero) + (bn.abs().amax(1) if neq else zero)
+
+    def decide(G_, h_, A_, b_, sc, fin, **kw):
+        b_n = G_.shape[0]
+        res = solve_convex_qp(G_.new_zeros(b_n, nz, nz), G_.new_zeros(b_n, nz), G_ if nineq else None,
+                              h_ if nineq else None, A_ if neq else None, b_ if neq else None, tol=min(tol, 1e-6),
+                              method="ipm", **kw)
+        viol, _ = _witness_and_certificate(G_, h_, A_, b_, res.z)
+        feas = fin & (viol <= tol * sc)
         lam, nu = res.lam.clamp_min(0), res.nu
-        mv = lambda M, v: (M @ v.unsqueeze(-1)).squeeze(-1)  # noqa: E731
-        e = mv(Gn.transpose(1, 2), lam) + mv(An.transpose(1, 2), nu)
-        g = -((hn * lam).sum(1) + (bn * nu).sum(1))
-        zero = torch.zeros((), dtype=f64, device=dev)
-        cert = finite & ~feas & (res.status == _INFEASIBLE) & (g > 0)
+        e = mv(G_.transpose(1, 2), lam) + mv(A_.transpose(1, 2), nu)
+        g = -((h_ * lam).sum(1) + (b_ * nu).sum(1))
+        cert = fin & ~feas & (res.status == _INFEASIBLE) & (g > 0)
         radius = torch.where(cert, g / e.norm(dim=1), zero)
         status = torch.where(feas, _CONVERGED, torch.where(cert, _INFEASIBLE, _MAX_ITERATIONS))
+        return feas, res.z, viol, radius, status, res.iterations.long()
+
+    with torch.no_grad():
+        feas, z, viol, radius, status, iters = decide(Gn, hn, An, bn, scale, finite)
+        open_ = finite & (status == _MAX_ITERATIONS)
+        if bool(open_.any()):                                     # host sync: once
+            j = open_.nonzero().squeeze(1)
+            sel = lambda t: t.index_select(0, j)  # noqa: E731
+            more = decide(sel(Gn), sel(hn), sel(An), sel(bn), sel(scale), sel(finite), ipm_iters=200,
+                          max_iters=2 * qp_tolerances(f64).max_iters)
+            feas, z, viol, radius, status = (t.index_copy(0, j, m) for t, m in
+                                              zip((feas, z, viol, radius, status), more[:5]))
+            iters = iters.index_copy(0, j, sel(iters) + more[5])
         status = torch.where(finite, status, _INVALID).to(torch.int8)
     return FeasibilityResult(feasible=feas, z=z.to(dt), violation=viol.to(dt), certified_radius=radius.to(dt),
-                             status=status, iterations=res.iterations.long())
+                             status=status, iterations=iters)
