@@ -542,7 +542,9 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             Ce[C.shape[0]:, nv:] = -np.eye(2 * m)
             de = np.concatenate([d, np.zeros(2 * m)])
             dx = dense_qp(He, ge, Ae, b, Ce, de)[0][:nv]
-        return dx
+        # the box bounds (joint limits, speeds) hold exactly whatever the subproblem's status: a failed elastic
+        # solve may return a step outside them
+        return np.clip(dx, lo, hi)
 
     def apply(x, dx):
         q, root, s = x
