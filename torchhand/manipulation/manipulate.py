@@ -165,7 +165,18 @@ def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None
     Raises:
         GraspUnsuitable: a planning window stays infeasible whatever contacts are added (frame, wrench deficit);
         InputValueError / UnknownNameError: a grasp that does not fit its hand or cannot be snapped.
+
+    The per-frame subproblems are small dense NumPy solves; they run with one BLAS thread (threadpoolctl), because
+    a multi-threaded BLAS rounds differently and the ablation's motion measurably depended on it. So the result is
+    the same on any machine for the same inputs and torch thread count.
     """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _manipulate(scene, grasp, settings, hand=hand, progress=progress)
+
+
+def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, hand, progress) -> ManipulationResult:
     settings = settings or ManipulationSettings()
     ps, ss = settings.plan, settings.synth
     t_start = time.perf_counter()
