@@ -571,56 +571,23 @@ def _stats(result: ResynthResult, written: list) -> dict:
 def prepare_result_dir(out, *, overwrite: bool = False):
     """Validate and claim ``out`` before any work (the synthesis writer's rules: new, empty, or an earlier result
     with ``overwrite``). returns: the writer; raises InputValueError with one line."""
-    return _Writer(out, overwrite=overwrite)
+    from ..synthesis.output import ResultWriter
+
+    return ResultWriter(out, overwrite=overwrite)
 
 
 def write_resynthesis(result: ResynthResult, out=None, *, overwrite: bool = False, writer=None) -> Path:
     """Write the result directory: scene/, hand.xml, solutions/sol_XXX.npz (one per completed rollout, in variant
     order), stats.json (``method: "kry_pai"``, every rollout's status, variant and solution index) last; every file
     atomically. Failed rollouts have no solution file (their frames end at the failed step). returns: the path."""
-    writer = writer if writer is not None else _Writer(out, overwrite=overwrite)
-    writer.begin(result)
+    writer = writer if writer is not None else prepare_result_dir(out, overwrite=overwrite)
+    writer.begin(result, result.scene, [result.hand])
     written = []
     for i, r in enumerate(result.rollouts):
         if r.ok:
-            writer.solution(len(written), solution_arrays(result, i), result.scene.name)
+            writer.write_solution(len(written), solution_arrays(result, i), result.scene.name)
             written.append(i)
-    return writer.end(_stats(result, written))
-
-
-def _make_writer_class():
-    from ..synthesis.output import ResultWriter, _atomic_bytes, _atomic_json, write_hand_file
-
-    class Writer(ResultWriter):
-        """:class:`~torchhand.synthesis.output.ResultWriter`'s validation, locking and swap-in, for rollouts."""
-
-        def begin(self, result: ResynthResult) -> None:
-            result.scene.export(self.stage / "scene", overwrite=True)
-            write_hand_file(self.stage / "hand.xml", result.hand, result.scene.hands[0])
-            (self.stage / "solutions").mkdir(exist_ok=True)
-            for old in (self.stage / "solutions").glob("sol_*.npz"):
-                old.unlink()
-            self.problem = result
-            self._partial(result.scene.name, 0)
-
-        def solution(self, index: int, arrays: dict, scene_name: str) -> None:
-            import io
-
-            buf = io.BytesIO()
-            np.savez_compressed(buf, **arrays)
-            _atomic_bytes(self.stage / "solutions" / f"sol_{index:03d}.npz", buf.getvalue())
-            self.written = max(self.written, index + 1)
-            self._partial(scene_name, self.written)
-
-        def end(self, stats: dict) -> Path:
-            _atomic_json(self.stage / "stats.json", stats)
-            return self.swap_in()
-
-    return Writer
-
-
-def _Writer(out, *, overwrite: bool = False):
-    return _make_writer_class()(out, overwrite=overwrite)
+    return writer.complete(_stats(result, written))
 
 
 def _progress_line(msg: str) -> None:

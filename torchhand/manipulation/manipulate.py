@@ -28,7 +28,6 @@ force, joint torques)`` in the order of :func:`~torchhand.hand.dynamics.point_ja
 from __future__ import annotations
 
 import dataclasses
-import io
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -382,7 +381,9 @@ def stats_dict(result: ManipulationResult, **extra) -> dict:
 def prepare_output(out, *, overwrite: bool = False):
     """Validate and claim the result directory before any work (the synthesis writer's rules). Raises
     InputValueError with one line."""
-    return _writer_class()(out, overwrite=overwrite)
+    from ..synthesis.output import ResultWriter
+
+    return ResultWriter(out, overwrite=overwrite)
 
 
 def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool = False, writer=None,
@@ -390,29 +391,9 @@ def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool 
     """Write the result directory: scene/ (with the synthesized wrist), hand.xml, solutions/sol_000.npz,
     stats.json last; every file atomically. Returns its path."""
     writer = writer if writer is not None else prepare_output(out, overwrite=overwrite)
-    return writer.write(result, extra)
-
-
-def _writer_class():
-    from ..synthesis.output import ResultWriter, _atomic_bytes, _atomic_json, write_hand_file
-
-    class Writer(ResultWriter):
-        def write(self, result: ManipulationResult, extra: dict) -> Path:
-            scene = result.scene
-            track = dataclasses.replace(scene.hands[0], wrist_pose=torch.as_tensor(result.root))
-            scene = dataclasses.replace(scene, hands=(track,) + tuple(scene.hands[1:]))
-            scene.export(self.stage / "scene", overwrite=True)
-            write_hand_file(self.stage / "hand.xml", result.hand, track)
-            (self.stage / "solutions").mkdir(exist_ok=True)
-            for old in (self.stage / "solutions").glob("sol_*.npz"):
-                old.unlink()
-            self.problem = result
-            self._partial(scene.name, 0)
-            buf = io.BytesIO()
-            np.savez_compressed(buf, **solution_arrays(result))
-            _atomic_bytes(self.stage / "solutions" / "sol_000.npz", buf.getvalue())
-            self.written = 1
-            _atomic_json(self.stage / "stats.json", stats_dict(result, **extra))
-            return self.swap_in()
-
-    return Writer
+    scene = result.scene
+    track = dataclasses.replace(scene.hands[0], wrist_pose=torch.as_tensor(result.root))
+    scene = dataclasses.replace(scene, hands=(track,) + tuple(scene.hands[1:]))
+    writer.begin(result, scene, [result.hand])
+    writer.write_solution(0, solution_arrays(result), scene.name)
+    return writer.complete(stats_dict(result, **extra))

@@ -197,10 +197,16 @@ class ResultWriter:
 
     def start(self, problem: SynthesisProblem, scene) -> None:
         """Write the scene, the hand models and a ``stats.json`` saying the run is partial."""
+        self.begin(problem, scene, problem.hands)
+
+    def begin(self, problem, scene, hands) -> None:
+        """Any method's first files: ``scene`` (its hand tracks' models ``hands``, in the scene's hand order, as
+        hand.xml and hand_<side>.xml), an emptied solutions/ and a ``stats.json`` saying the run is partial.
+        ``problem`` is the run's own state (not None: the writer has started)."""
         self.problem = problem
         scene.export(self.stage / "scene", overwrite=True)
-        for h, hand in enumerate(problem.hands):
-            name = "hand.xml" if h == 0 else f"hand_{problem.sides[h]}.xml"
+        for h, hand in enumerate(hands):
+            name = "hand.xml" if h == 0 else f"hand_{scene.hands[h].side}.xml"
             write_hand_file(self.stage / name, hand, scene.hands[h])
         (self.stage / "solutions").mkdir(exist_ok=True)
         for old in (self.stage / "solutions").glob("sol_*.npz"):
@@ -213,11 +219,15 @@ class ResultWriter:
 
     def add(self, result: SynthesisResult, index: int) -> None:
         """Checkpoint solution ``index`` of ``result`` (its npz, then the partial stats)."""
+        self.write_solution(index, solution_arrays(result, index), result.scene.name)
+
+    def write_solution(self, index: int, arrays: dict, scene_name: str) -> None:
+        """Checkpoint ``sol_<index>.npz`` with ``arrays`` (atomically), then the partial stats."""
         buf = io.BytesIO()
-        np.savez_compressed(buf, **solution_arrays(result, index))
+        np.savez_compressed(buf, **arrays)
         _atomic_bytes(self.stage / "solutions" / f"sol_{index:03d}.npz", buf.getvalue())
         self.written = max(self.written, index + 1)
-        self._partial(result.scene.name, self.written)
+        self._partial(scene_name, self.written)
 
     def interrupted(self, result: SynthesisResult | None, scene_name: str) -> Path:
         """Leave the checkpoints readable after an interruption: ``stats.json`` says partial. Returns the
@@ -242,11 +252,12 @@ class ResultWriter:
 
     def finish(self, result: SynthesisResult, *, threads: int | None = None) -> Path:
         """Write the final ``stats.json`` and, when replacing, swap the new directory in. Returns ``out``."""
-        _atomic_json(self.stage / "stats.json", stats_dict(result, threads=threads))
-        return self.swap_in()
+        return self.complete(stats_dict(result, threads=threads))
 
-    def swap_in(self) -> Path:
-        """Release the lock and, when replacing an earlier result, swap the new directory in. Returns ``out``."""
+    def complete(self, stats: dict) -> Path:
+        """Write the final ``stats`` (``complete: true``), release the lock and, when replacing an earlier result,
+        swap the new directory in. Returns ``out``."""
+        _atomic_json(self.stage / "stats.json", stats)
         self._unlock()
         if self.stage != self.out:
             old = self.out.with_name(self.out.name + f".old-{os.getpid()}")
