@@ -244,3 +244,15 @@ def test_maros_meszaros(name):
                           t(Ae) if len(Ae) else None, t(be) if len(Ae) else None, max_iters=20000)
     assert int(res.status[0]) == CONVERGED, (name, res)
     assert float(res.objective[0]) + r == pytest.approx(ref["clarabel_obj"], rel=1e-7, abs=1e-7)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")
+@pytest.mark.parametrize("method", ["ipm", "admm"])
+def test_window_qps_cuda_match_cpu(gen, method):
+    """The planner's window problems solved on the GPU give the CPU's statuses and objectives (float64)."""
+    for qp in _window_batch(gen, [("grasp", False), ("grasp", True), ("pinch", False), ("weak", False)]):
+        cpu = solve_convex_qp(*_window_args(qp), method=method)
+        gpu = solve_convex_qp(*(a.cuda() for a in _window_args(qp)), method=method)
+        assert gpu.z.is_cuda and gpu.status.cpu().tolist() == cpu.status.tolist()
+        ok = cpu.status == CONVERGED
+        torch.testing.assert_close(gpu.objective.cpu()[ok], cpu.objective[ok], rtol=1e-6, atol=1e-8)

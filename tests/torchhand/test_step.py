@@ -502,3 +502,34 @@ def test_lever_float32():
     arm = state.contacts.points[:, 1] - root[:, :3, 3]
     torque = torch.linalg.cross(arm, state.forces[:, 1], dim=-1)[:, 1]
     torch.testing.assert_close(-torque, (theta_final[:, 0] - state.q[:, 0]) / c, rtol=1e-3, atol=1e-4)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")
+@pytest.mark.parametrize("scene", ["comb", "pinch"])
+def test_batched_step_cuda_matches_cpu(scene):
+    """Batched rollouts (B = 6, 12 steps, PGS with Lemke for the stragglers) on the GPU give the CPU's forces and configurations (float64)."""
+    from torchhand._tree import tree_to
+
+    out = {}
+    for device in ("cpu", "cuda"):
+        if scene == "comb":
+            hand, state, C, env, settings, ref = comb_scene(6, "auto")
+            obj = None
+        else:
+            hand, state, C, obj, settings, ref = pinch_scene(6, "auto")
+            env = None
+        settings = replace(settings, pgs_tol=1e-9, pgs_max_iters=1000)
+        if device == "cuda":
+            hand, state, C = hand.to(device), tree_to(state, device), C.to(device)
+            if obj is not None:
+                obj = replace(obj, sdf=obj.sdf.to(device))
+            ref = (lambda r: (lambda k: r(k).to(device)))(ref)
+        state, reports = run(state, hand, C, ref, 12, obj=obj, env=env, settings=settings)
+        assert all(bool((rep.status == CONVERGED).all()) for rep in reports)
+        out[device] = state
+    g, c = out["cuda"], out["cpu"]
+    assert g.q.is_cuda
+    torch.testing.assert_close(g.q.cpu(), c.q, atol=1e-6, rtol=0)
+    torch.testing.assert_close(g.forces.sum(1).cpu(), c.forces.sum(1), atol=1e-4, rtol=0)
+    if scene == "pinch":
+        torch.testing.assert_close(g.object_pose.cpu(), c.object_pose, atol=1e-6, rtol=0)
