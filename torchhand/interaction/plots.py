@@ -6,6 +6,9 @@
 * ``contact_event_<e>.png`` (Fig. 3 analogue): for the loaded coordinates of event e (at most ``max_joints``),
   theta_j and tau_j against time around t_c with the pre and post windows shaded, the fitted polynomials, and
   theta_r = theta - c tau.
+* :func:`plot_slip_ratio_comparison` (Fig. 14 analogue): resynthesised rollouts side by side, the ratio
+  |f_t| / f_n of every hand link's contact against time with lines at mu and the imminent-slip threshold, the grip
+  events marked, and the normal forces below.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import numpy as np
 from .._atomic import atomic_bytes
 from .estimate import REASON_NAMES, Reason
 
-__all__ = ["plot_compliance_events", "plot_contact_event", "write_plots"]
+__all__ = ["plot_compliance_events", "plot_contact_event", "write_plots", "plot_slip_ratio_comparison"]
 
 
 def _figure(*args, **kwargs):
@@ -135,3 +138,65 @@ def write_plots(result, out, *, max_events: int | None = None) -> list[Path]:
     for e in range(E):
         paths.append(plot_contact_event(result, e, out / f"contact_event_{e}.png"))
     return paths
+
+
+def _per_link(arrays: dict, values: np.ndarray) -> dict:
+    """Per hand link: the (T,) series of ``values`` (T, K) at the columns where that link is in contact (NaN
+    where it is not); the columns of a result's contact arrays change owner from frame to frame."""
+    link = arrays["contact_link"]
+    out = {}
+    for lk in sorted(int(v) for v in np.unique(link[link >= 0])):
+        hit = link == lk
+        out[lk] = np.where(hit.any(1), np.where(hit, values, 0.0).sum(1), np.nan)
+    return out
+
+
+def plot_slip_ratio_comparison(results, path, *, ratio: float = 0.9) -> Path:
+    """Fig. 14 analogue: one column per rollout, side by side.
+
+    results: sequence of (title, arrays) with ``arrays`` the npz arrays of a resynthesised rollout
+        (:func:`torchhand.interaction.resynth.solution_arrays`: ``slip_ratio`` (T, K), ``contact_link`` (T, K),
+        ``contact_force`` and ``contact_normal`` (T, K, 3), ``grip_events`` (G, 2) rows (frame, link),
+        ``friction``, ``fps``, ``contact_link_name``)
+    path: the PNG to write; ratio: the imminent-slip threshold as a fraction of mu (the paper: 0.9)
+    Top row: |f_t| / f_n per hand link (computed where the normal force exceeds the watch threshold, 0 elsewhere),
+    mu and ratio x mu as dashed lines, grip events as ticks along the top; bottom row: the normal force per link.
+    """
+    results = list(results)
+    fig = _figure(figsize=(4.2 * len(results), 5.6))
+    axes_top, axes_bot = [], []
+    for col, (title, a) in enumerate(results):
+        ax = fig.add_subplot(2, len(results), col + 1, sharey=axes_top[0] if axes_top else None)
+        bx = fig.add_subplot(2, len(results), len(results) + col + 1, sharex=ax,
+                             sharey=axes_bot[0] if axes_bot else None)
+        axes_top.append(ax)
+        axes_bot.append(bx)
+        fps, mu = float(a["fps"]), float(a["friction"])
+        T = a["slip_ratio"].shape[0]
+        t = np.arange(T) / fps
+        names = [str(n) for n in a["contact_link_name"]]
+        fn = (a["contact_force"] * a["contact_normal"]).sum(-1) * a["contact_mask"]
+        rho = _per_link(a, a["slip_ratio"])
+        force = _per_link(a, np.abs(fn))
+        for i, lk in enumerate(rho):
+            ax.plot(t, rho[lk], "-", lw=1.0, color=f"C{i}", label=names[lk])
+            bx.plot(t, force[lk], "-", lw=1.0, color=f"C{i}", label=names[lk])
+        ax.axhline(mu, color="k", ls="--", lw=0.8, label="µ")
+        ax.axhline(ratio * mu, color="C3", ls=":", lw=0.9, label=f"{ratio:g} µ")
+        ev = np.asarray(a["grip_events"]).reshape(-1, 2)
+        if ev.size:
+            frames = np.unique(ev[:, 0])
+            ax.plot(frames / fps, np.full(frames.shape, 1.08 * mu), "|", color="C3", ms=6, label="grip event")
+        peak = float(np.nanmax(a["slip_ratio"])) if T else 0.0
+        ax.set_title(f"{title}\npeak ratio {peak:.3f} ({peak / mu:.2f} µ), {len(ev)} grip events", fontsize=9)
+        ax.set_ylim(0.0, 1.2 * mu)
+        ax.set_xlim(0.0, max(t[-1], 1.0 / fps) if T else 1.0)
+        ax.tick_params(labelsize=7)
+        bx.tick_params(labelsize=7)
+        bx.set_xlabel("time, s", fontsize=8)
+        if col == 0:
+            ax.set_ylabel("|f_t| / f_n", fontsize=8)
+            bx.set_ylabel("normal force, N", fontsize=8)
+            ax.legend(fontsize=6, loc="lower right")
+    fig.tight_layout()
+    return _save(fig, Path(path))
