@@ -218,6 +218,10 @@ class Scene:
         gravity: gravitational acceleration, (3,), world, m/s^2, default (0, 0, -9.81)
         description: free text, str
         source: the motion capture the wrists came from (``scene import-mocap``), :class:`MocapSource` or None
+        external_wrench: a known wrench applied to the object by something other than the hands, the table and
+            gravity (a push, a spring, a tool), (T, 6): force (N) and torque about the object's centre of mass
+            (N m), world, float64; or None (default: no external wrench). It acts ON the object: the contacts
+            supply ``m a - m g - external`` (force) and ``I alpha + omega x I omega - external`` (torque).
 
     ``T``, ``dt`` and ``duration`` are derived. Update with ``dataclasses.replace``; tensor fields follow
     :mod:`torchhand._tree` (``tree_to`` moves them to a device).
@@ -233,6 +237,7 @@ class Scene:
     gravity: torch.Tensor = field(default_factory=_default_gravity)
     description: str = ""
     source: MocapSource | None = None
+    external_wrench: torch.Tensor | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -264,6 +269,8 @@ class Scene:
             raise InputTypeError(f"Scene.description: expected a str, got {type(self.description).__name__}")
         if self.source is not None and not isinstance(self.source, MocapSource):
             raise InputTypeError(f"Scene.source: expected a MocapSource or None, got {type(self.source).__name__}")
+        if self.external_wrench is not None:
+            _check_external_wrench(self.external_wrench, self.T)
 
     # -- derived ------------------------------------------------------------------------------------------------
 
@@ -311,6 +318,11 @@ class Scene:
             check_transforms(h.wrist_pose, f"scene '{self.name}': wrist_pose_{h.side}")
         if not bool(torch.isfinite(self.gravity).all()):
             raise InputValueError(f"scene '{self.name}': gravity must be finite, got {self.gravity.tolist()}")
+        if self.external_wrench is not None:
+            bad = ~torch.isfinite(self.external_wrench).all(-1)
+            if bool(bad.any()):
+                raise InputValueError(f"scene '{self.name}': external_wrench must be finite; frame "
+                                      f"{int(bad.nonzero()[0, 0])} has {self.external_wrench[bad][0].tolist()}")
         return self
 
     # -- editing ------------------------------------------------------------------------------------------------
@@ -329,13 +341,15 @@ class Scene:
         s = slice(int(start), int(stop))
         hands = tuple(dataclasses.replace(h, wrist_pose=h.wrist_pose[s].clone()) for h in self.hands)
         source = None if self.source is None else self.source.shifted(start * self.source.fps / self.fps)
-        return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands, source=source)
+        ext = None if self.external_wrench is None else self.external_wrench[s].clone()
+        return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands, source=source,
+                                   external_wrench=ext)
 
     def resample(self, fps: float) -> "Scene":
         """The same motion sampled at ``fps``: positions interpolated linearly, rotations by slerp.
 
         The new frames are at ``k / fps`` for ``k = 0 .. floor(duration * fps)``; the last one is at or before the
-        original last frame.
+        original last frame. An ``external_wrench`` is interpolated linearly.
         """
         fps = _check_number(fps, "fps", low=0.0, strict=True)
         n = int(math.floor(self.duration * fps + 1e-9)) + 1
@@ -343,14 +357,16 @@ class Scene:
         src = self.times()
         hands = tuple(dataclasses.replace(h, wrist_pose=interpolate_poses(h.wrist_pose, src, times))
                       for h in self.hands)
+        ext = None if self.external_wrench is None else _interpolate_linear(self.external_wrench, src, times)
         return dataclasses.replace(self, fps=fps, object_pose=interpolate_poses(self.object_pose, src, times),
-                                   hands=hands)
+                                   hands=hands, external_wrench=ext)
 
     def smoothed(self, sigma: float) -> "Scene":
-        """The same scene with every trajectory (object and wrists) low-pass filtered: a Gaussian of standard
+        """The same scene with every pose trajectory (object and wrists) low-pass filtered: a Gaussian of standard
         deviation ``sigma`` seconds (:func:`smooth_poses`). Motion capture jitters by millimetres and a degree
         from frame to frame; the synthesis reads accelerations (the required wrench) and hand-object sliding
         speeds from these trajectories, and both amplify that noise. ``sigma = 0`` returns the scene unchanged.
+        An ``external_wrench`` is given data, not a measurement of the motion: it is kept as it is.
         """
         sigma = _check_number(sigma, "sigma", low=0.0)
         if sigma == 0.0:
@@ -380,8 +396,35 @@ class Scene:
         return export_scene_dir(self, directory, overwrite=overwrite)
 
 
+def _check_external_wrench(x, T: int) -> None:
+    """Cheap checks of ``Scene.external_wrench`` (type, shape, dtype); finiteness is in :meth:`Scene.validate`."""
+    if not isinstance(x, torch.Tensor):
+        raise InputTypeError(f"Scene.external_wrench: expected a torch.Tensor (T, 6) or None, got {type(x).__name__}")
+    if x.dim() != 2 or x.shape[1] != 6:
+        raise ShapeError(f"Scene.external_wrench: expected shape (T, 6) (force N, torque N m about the centre of "
+                         f"mass, world), got {tuple(x.shape)}")
+    if x.shape[0] != T:
+        raise ShapeError(f"Scene.external_wrench: expected T = {T} frames (as object_pose), got {x.shape[0]}")
+    if not x.is_floating_point():
+        raise InputTypeError(f"Scene.external_wrench: expected a floating-point tensor, got dtype {x.dtype}")
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # pose interpolation
+
+
+def _interpolate_linear(x: torch.Tensor, times: torch.Tensor, new_times: torch.Tensor) -> torch.Tensor:
+    """Linear interpolation of samples ``x (T, C)`` at increasing ``times (T,)`` to ``new_times (N,)`` (clamped to
+    the sampled range). Returns (N, C), dtype and device of ``x``."""
+    T = x.shape[0]
+    new_times = new_times.to(dtype=x.dtype, device=x.device)
+    times = times.to(dtype=x.dtype, device=x.device)
+    if T == 1:
+        return x.expand(new_times.shape[0], x.shape[1]).clone()
+    t = new_times.clamp(times[0], times[-1])
+    i0 = (torch.searchsorted(times, t, right=True) - 1).clamp(0, T - 2)
+    w = ((t - times[i0]) / (times[i0 + 1] - times[i0])).clamp(0.0, 1.0)[:, None]
+    return x[i0] + w * (x[i0 + 1] - x[i0])
 
 
 def interpolate_poses(poses: torch.Tensor, times: torch.Tensor, new_times: torch.Tensor) -> torch.Tensor:

@@ -29,6 +29,7 @@ __all__ = ["load_scene_dir", "export_scene_dir"]
 _SCENE_TOML = "scene.toml"
 _MESH_FILE = "object.obj"
 _TRAJ_FILE = "trajectories.npz"
+_EXTERNAL = "external_wrench"   # the optional (T, 6) array in the trajectories npz and its [scene] flag
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -77,6 +78,8 @@ def _write_files(scene: Scene, out: Path) -> None:
     arrays = {"object_pose": scene.object_pose.detach().cpu().to(torch.float64).numpy()}
     for h in scene.hands:
         arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
+    if scene.external_wrench is not None:
+        arrays[_EXTERNAL] = scene.external_wrench.detach().cpu().to(torch.float64).numpy()
     with open(out / _TRAJ_FILE, "wb") as f:
         np.savez(f, **arrays)
     doc = {
@@ -88,7 +91,7 @@ def _write_files(scene: Scene, out: Path) -> None:
             "friction": float(scene.friction),
             "gravity": [float(v) for v in scene.gravity.tolist()],
             "trajectories": _TRAJ_FILE,
-        },
+        } | ({_EXTERNAL: True} if scene.external_wrench is not None else {}),
         "object": {"name": scene.object.name, "mesh": _MESH_FILE, "mass": float(scene.object.mass),
                    "scale": 1.0},
         "environment": {"table": bool(scene.environment.table),
@@ -142,7 +145,7 @@ def _source_doc(src: MocapSource) -> dict:
 
 _SCHEMA = {
     "": {"format_version", "scene", "object", "environment", "hands", "source"},
-    "scene": {"name", "description", "fps", "friction", "gravity", "trajectories"},
+    "scene": {"name", "description", "fps", "friction", "gravity", "trajectories", "external_wrench"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
     "environment": {"table", "table_height", "friction"},
     "hands": {"side", "length", "model"},
@@ -236,6 +239,7 @@ def load_scene_dir(directory: Path) -> Scene:
     name = r.get(sc, "scene", "name", "str", directory.resolve().name)
     description = r.get(sc, "scene", "description", "str", "")
     traj_name = r.get(sc, "scene", "trajectories", "str", _TRAJ_FILE)
+    external_flag = r.get(sc, "scene", _EXTERNAL, "bool", None)
 
     mesh_name = r.get(ob, "object", "mesh", "str")
     mass = r.positive(ob, "object", "mass", None)
@@ -279,8 +283,11 @@ def load_scene_dir(directory: Path) -> Scene:
     if not mesh_path.is_file():
         raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
     traj_path = directory / traj_name
-    arrays = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _, _ in hand_specs])
+    arrays, external = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _, _ in hand_specs],
+                                          external_flag)
     T = arrays["object_pose"].shape[0]
+    if external is not None and external.shape[0] != T:
+        raise ShapeError(f"{traj_path}: {_EXTERNAL}: expected T = {T} frames (as object_pose), got {external.shape[0]}")
     for key, a in arrays.items():
         if a.shape[0] != T:
             raise ShapeError(f"{traj_path}: {key}: expected T = {T} frames (as object_pose), got {a.shape[0]}")
@@ -294,7 +301,7 @@ def load_scene_dir(directory: Path) -> Scene:
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
                       friction=friction, environment=environment,
                       gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
-                      description=description, source=source)
+                      description=description, source=source, external_wrench=external)
         return scene.validate()
     except TorchhandError as err:  # name the file for errors found by the dataclass checks
         raise type(err)(f"{toml_path}: {err}") from None
@@ -325,18 +332,25 @@ def _read_source(r: _Reader, doc: dict) -> MocapSource:
                        hand_rotation=tuple(rotations))
 
 
-def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:
+def _read_trajectories(path: Path, keys: list[str], external_flag: bool | None = None
+                       ) -> tuple[dict[str, torch.Tensor], torch.Tensor | None]:
+    """The pose arrays ``keys`` ((T, 4, 4) each) and the optional external wrench (T, 6), float64 tensors.
+    ``external_flag``: ``[scene] external_wrench`` (True: the array is required; False: it is ignored; None: read
+    when present)."""
     if not path.is_file():
         raise MissingFileError(f"scene.trajectories: '{path}' does not exist")
     try:
         with np.load(path, allow_pickle=False) as data:
             present = set(data.files)
             missing = [k for k in keys if k not in present]
+            if external_flag is True and _EXTERNAL not in present:
+                missing.append(_EXTERNAL)
             if missing:
                 raise FileFormatError(
                     f"{path}: missing array(s) {', '.join(missing)}; has {', '.join(sorted(present))}"
                 )
             raw = {k: data[k] for k in keys}
+            ext = data[_EXTERNAL] if external_flag is not False and _EXTERNAL in present else None
     except TorchhandError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
@@ -348,4 +362,14 @@ def _read_trajectories(path: Path, keys: list[str]) -> dict[str, torch.Tensor]:
         if a.ndim != 3 or a.shape[1:] != (4, 4) or a.shape[0] < 1:
             raise ShapeError(f"{path}: {k}: expected shape (T, 4, 4), got {a.shape}")
         out[k] = torch.tensor(a, dtype=torch.float64)
-    return out
+    if ext is None:
+        return out, None
+    if ext.dtype.kind not in "fiu":
+        raise FileFormatError(f"{path}: {_EXTERNAL}: expected a numeric array, got dtype {ext.dtype}")
+    if ext.ndim != 2 or ext.shape[1] != 6:
+        raise ShapeError(f"{path}: {_EXTERNAL}: expected shape (T, 6) (force N, torque N m about the centre of mass, "
+                         f"world), got {ext.shape}")
+    if not np.isfinite(ext).all():
+        t = int(np.flatnonzero(~np.isfinite(ext).all(1))[0])
+        raise InputValueError(f"{path}: {_EXTERNAL}: expected finite values, frame {t} has {ext[t].tolist()}")
+    return out, torch.tensor(ext, dtype=torch.float64)

@@ -222,8 +222,67 @@ def test_cli_bad_inputs_exit_2(scene_dir, tmp_path, capsys):
 
 
 def test_cli_unsuitable_grasp_exits_1(scene_dir, tmp_path, capsys):
+    """Unsuitable at the first window: nothing written. Unsuitable later (a 1000 N push on the object from frame 4,
+    beyond what 30 N contacts can hold): the frames before the failing window are a valid, partial result."""
+    import json
+    import re
+    import shutil
+
+    from torchhand.result import load_result
+
     out = tmp_path / "u"
     assert cli(["manipulate", str(scene_dir), "--out", str(out), "--max-force", "0.05", "--no-progress"]) == 1
     err = capsys.readouterr().err
-    assert "the grasp cannot realise the motion at frame" in err
+    assert re.search(r"^torchhand: grasp unsuitable for this motion at frame \d+: .*; nothing written$", err.strip())
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (out / "solutions").exists()
+
+    scene = load_scene(scene_dir)
+    push = torch.zeros(scene.T, 6, dtype=torch.float64)
+    push[4:, 0] = 1000.0
+    pushed = dataclasses.replace(scene, external_wrench=push).export(tmp_path / "pushed")
+    shutil.copyfile(scene_dir / "grasp.npz", pushed / "grasp.npz")
+    out = tmp_path / "partial"
+    argv = ["manipulate", str(pushed), "--out", str(out), "--frames", "0:6", "--window", "2", "--no-progress"]
+    assert cli(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("torchhand: grasp unsuitable for this motion at frame 4: ") and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"] is False and stats["status"] == "grasp_unsuitable" and stats["T"] == 3
+    u = stats["unsuitable"]
+    assert u["frame"] == 4 and u["window"] == 3 and u["frames_done"] == 3
+    assert u["deficit_force_N"] > 500          # most of the 1000 N push is beyond the contacts
+    res = load_result(out)
+    assert not res.complete and res.scene.T == 3 and res.solution(0).T == 3
+    assert torch.equal(res.scene.external_wrench, push[:3])
+    z = np.load(out / "solutions" / "sol_000.npz")
+    assert z["torque"].shape[0] == 3 and z["contact_mask"].shape[0] == 3 and z["q"].shape[0] == 3
+
+
+def test_plots_of_a_result_and_its_ablation(runs, tmp_path, capsys):
+    """torchhand plot on a manipulate result with --compare: the three PNGs; the plotted deviation and per-contact
+    forces are the result's own (slots mapped back through contact_slot), the per-finger parts sum to the joints."""
+    from torchhand.manipulation.plots import load_trace, torque_deviation
+
+    _, _, out = runs
+    (res, d), (abl, da) = out["default"], out["ablation"]
+    target = tmp_path / "plots"
+    assert cli(["plot", str(d), "--compare", str(da), "--out", str(target)]) == 0
+    for name in ("torque_deviation.png", "forces.png", "contact_timeline.png", "joints.png"):
+        data = (target / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    tr = load_trace(d)
+    np.testing.assert_array_equal(tr.force, res.contact_force)
+    np.testing.assert_array_equal(tr.planned, res.planned_force)
+    np.testing.assert_array_equal(tr.mask, res.contact_mask)
+    np.testing.assert_array_equal(tr.added, res.contact_added)
+    for r, t in ((res, tr), (abl, load_trace(da))):
+        dev = torque_deviation(t)
+        np.testing.assert_allclose(dev["joints"], ((r.torque[:, 6:] - r.torque_rest[6:]) ** 2).sum(1), rtol=1e-12)
+        np.testing.assert_allclose(dev["wrist"], ((r.torque[:, :6] - r.torque_rest[:6]) ** 2).sum(1), rtol=1e-12)
+        np.testing.assert_allclose(sum(dev[f] for f in t.finger_names), dev["joints"], rtol=1e-12)
+    assert tr.objective == "torque" and load_trace(da).objective == "pose"
+    capsys.readouterr()
+    assert cli(["plot", str(d), "--compare", str(tmp_path)]) == 2
+    assert "--compare" in capsys.readouterr().err

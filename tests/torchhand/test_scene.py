@@ -175,6 +175,8 @@ def assert_same_scene(a: Scene, b: Scene):
     assert a.environment == b.environment
     assert torch.equal(a.gravity, b.gravity)
     assert torch.equal(a.object_pose, b.object_pose)
+    assert (a.external_wrench is None) == (b.external_wrench is None)
+    assert a.external_wrench is None or torch.equal(a.external_wrench, b.external_wrench)
     assert a.sides == b.sides
     for ha, hb in zip(a.hands, b.hands):
         assert ha.length == hb.length and torch.equal(ha.wrist_pose, hb.wrist_pose)
@@ -494,3 +496,65 @@ def test_mocap_source_round_trip_and_frame_shift(scenes, tmp_path):
     edit_toml(tmp_path / "s", 'kind = "body"', 'kind = "arm"')
     with pytest.raises(InputValueError, match="kind"):
         load_scene(tmp_path / "s")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# external wrench
+
+
+def _pushed(scene: Scene) -> Scene:
+    """``scene`` with a known external wrench: a push ramping along +x and a torque about z, (T, 6)."""
+    t = torch.arange(scene.T, dtype=torch.float64)
+    ext = torch.zeros(scene.T, 6, dtype=torch.float64)
+    ext[:, 0], ext[:, 5] = 0.1 * t, -0.01 * t
+    return dataclasses.replace(scene, external_wrench=ext)
+
+
+def test_external_wrench_round_trip_and_editing(scenes, tmp_path):
+    s = _pushed(scenes["box-turn"])
+    out = s.export(tmp_path / "pushed")
+    with np.load(out / "trajectories.npz") as z:
+        np.testing.assert_array_equal(z["external_wrench"], s.external_wrench.numpy())
+    assert "external_wrench = true" in (out / "scene.toml").read_text()
+    loaded = load_scene(out)
+    assert_same_scene(s, loaded)
+    # no wrench: nothing written, None read back
+    plain = load_scene(scenes["box-turn"].export(tmp_path / "plain"))
+    assert plain.external_wrench is None
+    assert "external_wrench" not in (tmp_path / "plain" / "scene.toml").read_text()
+    # slicing keeps the matching rows; resampling interpolates them linearly; smoothing keeps them
+    cut = loaded.with_frames(10, 20)
+    assert torch.equal(cut.external_wrench, s.external_wrench[10:20])
+    half = s.resample(15.0)
+    np.testing.assert_allclose(half.external_wrench[:, 0].numpy(), 0.1 * 2 * np.arange(half.T), atol=1e-12)
+    assert torch.equal(s.smoothed(0.05).external_wrench, s.external_wrench)
+
+
+def test_external_wrench_bad_input(scenes, tmp_path):
+    s = scenes["box-turn"]
+    with pytest.raises(ShapeError, match=r"external_wrench: expected shape \(T, 6\)"):
+        dataclasses.replace(s, external_wrench=torch.zeros(s.T, 3, dtype=torch.float64))
+    with pytest.raises(ShapeError, match=f"expected T = {s.T} frames"):
+        dataclasses.replace(s, external_wrench=torch.zeros(s.T - 1, 6, dtype=torch.float64))
+    with pytest.raises(TorchhandError, match="external_wrench: expected a torch.Tensor"):
+        dataclasses.replace(s, external_wrench=np.zeros((s.T, 6)))
+    bad = torch.zeros(s.T, 6, dtype=torch.float64)
+    bad[4, 2] = float("nan")
+    with pytest.raises(InputValueError, match="external_wrench must be finite; frame 4"):
+        dataclasses.replace(s, external_wrench=bad).validate()
+    # on disk: a NaN, a wrong shape, a flag without the array
+    out = _pushed(s).export(tmp_path / "pushed")
+    edit_npz(out, "external_wrench", lambda a: np.where(np.arange(len(a))[:, None] == 3, np.nan, a))
+    with pytest.raises(InputValueError, match=r"external_wrench: expected finite values, frame 3"):
+        load_scene(out)
+    edit_npz(out, "external_wrench", lambda a: np.zeros((len(a), 5)))
+    with pytest.raises(ShapeError, match=r"external_wrench: expected shape \(T, 6\)"):
+        load_scene(out)
+    edit_npz(out, "external_wrench", lambda a: np.zeros((len(a) + 1, 6)))
+    with pytest.raises(ShapeError, match="expected T ="):
+        load_scene(out)
+    with np.load(out / "trajectories.npz") as data:
+        arrays = {k: data[k] for k in data.files if k != "external_wrench"}
+    np.savez(out / "trajectories.npz", **arrays)
+    with pytest.raises(FileFormatError, match="missing array.*external_wrench"):
+        load_scene(out)

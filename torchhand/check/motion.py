@@ -7,10 +7,11 @@ is the central second difference of ``c`` over the frames; the angular velocity 
 adjacent relative rotations' rotation vectors (SciPy ``Rotation``) times fps, the angular acceleration ``alpha``
 their difference times fps; the first and last frames copy their neighbours (one-sided). Per frame::
 
-    force error  = |sum f_hand + sum f_table + m g - m a| / (m |g|)
-    torque error = |sum (p - c) x f - (I_w alpha + omega x I_w omega)| / (m |g| extent)
+    force error  = |sum f_hand + sum f_table + m g + f_ext - m a| / (m |g|)
+    torque error = |sum (p - c) x f + tau_ext - (I_w alpha + omega x I_w omega)| / (m |g| extent)
 
-with ``I_w = R I R^T`` and ``extent`` the largest side of the mesh's bounding box.
+with ``I_w = R I R^T``, ``extent`` the largest side of the mesh's bounding box and ``(f_ext, tau_ext)`` the scene's
+external wrench on the object (force, torque about the centre of mass, world; zero when the scene has none).
 
 Joints (hand.xml's limits, radians): the violation ``max(lo - q, q - hi, 0)``; the speed ``|q[t] - q[t-1]| fps``
 (reported at frame t); the acceleration ``|q[t+1] - 2 q[t] + q[t-1]| fps^2`` (at frame t).
@@ -21,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..errors import ShapeError
 from .geometry import ObjectMesh
 
 __all__ = ["object_dynamics", "balance_errors", "joint_limit_violation", "joint_speed", "joint_acceleration",
@@ -49,10 +51,13 @@ def object_dynamics(pose: np.ndarray, com_local: np.ndarray, fps: float):
     return com, acc, omega, alpha
 
 
-def balance_errors(sol, obj: ObjectMesh, mass: float, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def balance_errors(sol, obj: ObjectMesh, mass: float, gravity: np.ndarray,
+                   external: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Relative force and torque errors of every frame, (T,) each (see the module docstring).
 
-    sol: a :class:`torchhand.result.Solution`; mass: kg; gravity: (3,), m/s^2
+    sol: a :class:`torchhand.result.Solution`; mass: kg; gravity: (3,), m/s^2; external: the external wrench on
+    the object (:attr:`torchhand.scene.Scene.external_wrench`), (T, 6), force (N) and torque about the object's
+    centre of mass (N m), world, or None. (The torque is taken about this mesh-derived centre of mass.)
     """
     pose = sol.object_pose
     com, acc, omega, alpha = object_dynamics(pose, obj.com, sol.fps)
@@ -65,6 +70,12 @@ def balance_errors(sol, obj: ObjectMesh, mass: float, gravity: np.ndarray) -> tu
     I_w = np.einsum("tij,jk,tlk->til", R, obj.inertia, R)
     L = np.einsum("tij,tj->ti", I_w, omega)
     torque_req = np.einsum("tij,tj->ti", I_w, alpha) + np.cross(omega, L)
+    if external is not None:
+        ext = np.asarray(external, dtype=np.float64)
+        if ext.shape != (pose.shape[0], 6):
+            raise ShapeError(f"external: expected shape ({pose.shape[0]}, 6) (the solution's T), got {ext.shape}")
+        force = force + ext[:, :3]
+        torque = torque + ext[:, 3:]
     weight = mass * float(np.linalg.norm(gravity))
     weight = weight if weight > 0 else mass * 9.81  # zero gravity: still relative to a weight
     f_err = np.linalg.norm(force - mass * acc, axis=-1) / weight

@@ -4,12 +4,16 @@
 For every frame the contact forces of a short window are planned (Sec. 4; contacts are added when the grasp cannot
 produce the required wrench), then the hand pose, the wrist and the contact points of that frame are synthesized so
 that the hand's torques stay close to those of the grasp (Sec. 5). SCENE is a scene directory (its ``grasp.npz`` is
-used unless ``--grasp`` names another) or a built-in scene name (then ``--grasp`` is required). The grasp belongs to
-the first frame of the (``--frames``) range.
+used unless ``--grasp`` names another) or a built-in scene name (its shipped grasp when it has one, otherwise
+``--grasp`` is required). The grasp belongs to the first frame of the (``--frames``) range. A scene's
+``external_wrench`` (docs/scene_format.md) is part of the wrench the contacts must balance.
 
 Writes DIR/scene/ (with the synthesized wrist), DIR/hand.xml, DIR/solutions/sol_000.npz (with ``torque``,
 ``torque_rest`` and ``contact_added``) and DIR/stats.json (``method: "liu2009"``) (docs/result_format.md,
-docs/manipulation.md). Exit 1 when the grasp cannot realise the motion.
+docs/manipulation.md). When the grasp cannot realise the motion at frame k (counted from the first manipulated
+frame), exit 1 with one line giving k and the wrench deficit; the frames synthesized before it are written as a
+valid result with ``complete: false`` and ``status: "grasp_unsuitable"`` in stats.json (nothing when there are
+none).
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from ._common import Progress, add_threads_argument, apply_threads
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("manipulate", help="hand motion for an object motion from a grasping pose (Liu 2009)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scene", help="a scene directory (with grasp.npz) or a built-in scene name (needs --grasp)")
+    p.add_argument("scene", help="a scene directory (with grasp.npz) or a built-in scene name (its shipped grasp, "
+                                 "or --grasp)")
     p.add_argument("--grasp", metavar="GRASP.npz", help="the grasp (default: SCENE/grasp.npz)")
     p.add_argument("--out", required=True, help="output directory: new, empty, or an earlier result with --overwrite "
                                                 "(checked before any work)")
@@ -41,12 +46,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _builtin_grasp(name: str) -> Path | None:
+    """The grasp shipped with the built-in scene ``name`` (``torchhand.scenes.liu.grasp_path``), or None."""
+    try:
+        from ..scenes import liu
+    except ImportError:
+        return None
+    find = getattr(liu, "grasp_path", None)
+    path = find(name) if callable(find) else None
+    return None if path is None else Path(path)
+
+
 def _grasp_path(scene_arg: str, grasp: str | None) -> Path:
     if grasp is not None:
         return Path(grasp)
     d = Path(scene_arg)
     if d.is_dir():
         return d / "grasp.npz"
+    builtin = _builtin_grasp(scene_arg)
+    if builtin is not None:
+        return builtin
     raise InputValueError(f"--grasp: required for the built-in scene '{scene_arg}' (a scene directory uses its "
                           f"grasp.npz); make one with 'torchhand grasp'")
 
@@ -86,8 +105,15 @@ def run(args) -> int:
                             progress=lambda k, T, s: bar.update("frames", f"{k + 1}/{T}, {s:.1f} s", (k + 1) / T))
     except GraspUnsuitable as err:
         bar.close()
-        writer.abandon()
-        print(f"torchhand: {err}", file=sys.stderr)
+        where = "nothing written"
+        if err.partial is None:
+            writer.abandon()
+        else:
+            out = write_manipulation(err.partial, writer=writer, unsuitable=err, grasp_file=str(grasp_file),
+                                     threads=threads)
+            where = f"frames 0-{err.partial.T - 1} written to {out} (stats.json: complete false)"
+        print(f"torchhand: grasp unsuitable for this motion at frame {err.frame}: {_deficit(err)}; {where}",
+              file=sys.stderr)
         return 1
     except BaseException:
         bar.close()
@@ -99,3 +125,13 @@ def run(args) -> int:
     print(f"{scene.name}: {result.T} frames in {t:.1f} s ({result.T / t:.1f} frames/s), {result.num_added} contact(s) "
           f"added; wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {out}/solutions/sol_000.npz")
     return 0
+
+
+def _deficit(err) -> str:
+    """The wrench deficit of a :class:`GraspUnsuitable`, in words."""
+    import numpy as np
+
+    d = err.deficit
+    return (f"the contacts ({', '.join(err.contacts) or '-'}) lack {np.linalg.norm(d[:3]):.3f} N and "
+            f"{np.linalg.norm(d[3:]):.4f} N m of the required wrench (force "
+            f"{np.array2string(d[:3], precision=3)} N, torque {np.array2string(d[3:], precision=4)} N m)")

@@ -6,7 +6,8 @@ For k = 0 .. T-1:
 1. **Plan** (Sec. 4, :mod:`.plan`): Eq. 4 over frames k .. k+n-1 with the contact positions of the synthesized
    frame k-1 (the grasp's at k = 0) frozen in the object frame; contacts that slid into frame k use the sliding
    ray at t = k. F_{k-1} is the re-projected force of frame k-1 (F_{-1} of Stage 1 at k = 0).
-2. **Add contacts** when infeasible (Sec. 4.3, inside :mod:`.plan`); no set of contacts: :class:`GraspUnsuitable`.
+2. **Add contacts** when infeasible (Sec. 4.3, inside :mod:`.plan`); no set of contacts: :class:`GraspUnsuitable`,
+   carrying the result of the frames synthesized before it (``partial``) for a partial result directory.
 3. **Synthesize** frame k (Sec. 5, :func:`.synth.synthesize_frame`): q, the root pose and the hand points h; the
    object points p follow from Eq. 6 and are projected onto the mesh (trimesh), with the mesh's normal there.
 4. **Re-project the forces** (addition (c) of docs/manipulation.md): ``min sum_i |B_i(p^k) lambda_i - f_i^plan|^2``
@@ -163,6 +164,8 @@ def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None
 
     Raises:
         GraspUnsuitable: a planning window stays infeasible whatever contacts are added (frame, wrench deficit);
+            its ``window`` is the frame k whose window failed and its ``partial`` the :class:`ManipulationResult`
+            of frames 0 .. k-1 (the scene cut to them), or None when k = 0;
         InputValueError / UnknownNameError: a grasp that does not fit its hand or cannot be snapped.
 
     The per-frame subproblems are small dense NumPy solves; they run with one BLAS thread (threadpoolctl), because
@@ -203,7 +206,14 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
     for k in range(T):
         t0 = time.perf_counter()
         H_before = len(c.link)
-        f_k, z = _plan._step(run, k, f_prev, z)
+        try:
+            f_k, z = _plan._step(run, k, f_prev, z)
+        except GraspUnsuitable as err:                      # keep the frames done before it (None when none)
+            err.window = k
+            err.partial = None if not rows else _collect(scene, grasp, hand, settings, run, rows, u_bar, {
+                "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
+                "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame})
+            raise
         lam_k = run.out[-1][1]
         t1 = time.perf_counter()
         H = len(c.link)
@@ -292,8 +302,12 @@ def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
 
 
 def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings) -> ManipulationResult:
+    """The result of the frames in ``rows`` (all of them, or the first ``len(rows)`` when the motion stopped early:
+    then the scene is cut to those frames and the slots are the contacts that existed when it stopped)."""
     geo, c = run.geo, run.c
-    T, E, K = geo.T, geo.E, len(c.link)
+    T, E, K = len(rows), geo.E, max(r["H"] for r in rows)     # K = len(c.link) when every frame was done
+    if T < geo.T:
+        scene = scene.with_frames(0, T)
     D = hand.num_joints
     z3 = lambda: np.zeros((T, K, 3))  # noqa: E731
     out = dict(q=np.zeros((T, D)), root=np.zeros((T, 4, 4)), torque=np.zeros((T, 6 + D)),
@@ -321,8 +335,9 @@ def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings) -> Manipul
         out["converged"][t], out["violation"][t], out["reproject_status"][t] = r["conv"], r["viol"], r["rstatus"]
     ps = settings.plan
     return ManipulationResult(
-        scene=scene, grasp=grasp, hand=hand, torque_rest=u_bar, contact_link=np.array(c.link, dtype=np.int64),
-        env_mask=geo.env_mask.copy(), env_point=geo.env_points.copy(), num_added=int(sum(s >= 0 for s in c.source)),
+        scene=scene, grasp=grasp, hand=hand, torque_rest=u_bar, contact_link=np.array(c.link[:K], dtype=np.int64),
+        env_mask=geo.env_mask[:T].copy(), env_point=geo.env_points[:T].copy(),
+        num_added=int(sum(s >= 0 for s in c.source[:K])),
         settings=settings, friction=geo.mu,
         mass=float(ps.mass if ps.mass is not None else scene.object.mass), timings=timings, **out)
 
@@ -332,7 +347,9 @@ def solution_arrays(result: ManipulationResult) -> dict:
     """The ``sol_000.npz`` arrays (docs/result_format.md, docs/manipulation.md): every key of the contract plus
     ``torque`` (T, 6 + D), ``torque_names`` (6 + D,), ``torque_rest`` (6 + D,), ``contact_added`` (T, K) and the
     method's own keys (``contact_lambda``, ``planned_force``, ``contact_hand_local``, ``contact_object_local``,
-    ``objective``, ``sqp_iterations``, ``mass``)."""
+    ``objective``, ``sqp_iterations``, ``mass``, ``contact_slot`` (T, K): the contact's slot in order of creation,
+    -1 where inactive (columns are sorted active-first per frame, so the slot identifies a contact across frames),
+    and ``contact_slot_link`` (K,): each slot's link index, never-active slots included)."""
     from ..result import FORMAT_VERSION
 
     r = result
@@ -360,16 +377,28 @@ def solution_arrays(result: ManipulationResult) -> dict:
         "planned_force": take(r.planned_force), "contact_hand_local": take(r.contact_hand_local),
         "contact_object_local": take(r.contact_object_local), "objective": r.objective,
         "sqp_iterations": r.iterations, "mass": np.array(r.mass),
+        "contact_slot": np.where(mask, order, -1).astype(np.int64),
+        "contact_slot_link": r.contact_link.astype(np.int64),
     }
 
 
-def stats_dict(result: ManipulationResult, **extra) -> dict:
-    """stats.json of a manipulation result (``method: "liu2009"``)."""
+def stats_dict(result: ManipulationResult, unsuitable: GraspUnsuitable | None = None, **extra) -> dict:
+    """stats.json of a manipulation result (``method: "liu2009"``). With ``unsuitable`` (the error that stopped the
+    motion; ``result`` holds the frames done before it) the stats say ``complete: false``, ``status:
+    "grasp_unsuitable"`` and give the frame and the wrench deficit under ``unsuitable``."""
     from ..result import FORMAT_VERSION
 
     r, s = result, result.settings
     fps_run = r.T / r.timings["total_s"] if r.timings.get("total_s") else None
-    return {"format_version": FORMAT_VERSION, "complete": True, "method": "liu2009", "scene": r.scene.name,
+    if unsuitable is not None:
+        e = unsuitable
+        extra = {"unsuitable": {"frame": e.frame, "window": e.window, "frames_done": r.T,
+                                "deficit": e.deficit.tolist(), "deficit_force_N": float(np.linalg.norm(e.deficit[:3])),
+                                "deficit_torque_Nm": float(np.linalg.norm(e.deficit[3:])),
+                                "contacts": list(e.contacts), "message": str(e)}, **extra}
+    return {"format_version": FORMAT_VERSION, "complete": unsuitable is None,
+            "status": "complete" if unsuitable is None else "grasp_unsuitable", "method": "liu2009",
+            "scene": r.scene.name,
             "T": r.T, "fps": float(r.scene.fps), "solutions": 1, "time_s": r.timings.get("total_s"),
             "frames_per_second": fps_run, "timings_s": r.timings, "added_contacts": r.num_added,
             "max_joint_speed": s.synth.joint_speed, "sqp_iterations": r.iterations.tolist(),
@@ -387,13 +416,17 @@ def prepare_output(out, *, overwrite: bool = False):
 
 
 def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool = False, writer=None,
-                       **extra) -> Path:
+                       unsuitable: GraspUnsuitable | None = None, **extra) -> Path:
     """Write the result directory: scene/ (with the synthesized wrist), hand.xml, solutions/sol_000.npz,
-    stats.json last; every file atomically. Returns its path."""
+    stats.json last; every file atomically. Returns its path.
+
+    unsuitable: the :class:`GraspUnsuitable` that stopped the motion, with ``result = unsuitable.partial`` (the
+    frames done before it): the directory is a valid result of those frames whose stats.json says ``complete:
+    false`` and ``status: "grasp_unsuitable"`` (:func:`stats_dict`)."""
     writer = writer if writer is not None else prepare_output(out, overwrite=overwrite)
     scene = result.scene
     track = dataclasses.replace(scene.hands[0], wrist_pose=torch.as_tensor(result.root))
     scene = dataclasses.replace(scene, hands=(track,) + tuple(scene.hands[1:]))
     writer.begin(result, scene, [result.hand])
     writer.write_solution(0, solution_arrays(result), scene.name)
-    return writer.complete(stats_dict(result, **extra))
+    return writer.complete(stats_dict(result, unsuitable, **extra))

@@ -21,7 +21,8 @@ Window loop, for k = 0 .. T-1
        (30 N); table contacts from :func:`torchhand.contacts_env.environment_contacts` (at most 8 per frame,
        farthest-point thinned), static or sliding as the object motion says (the sliding ray points along the
        table's velocity relative to the object's point, i.e. against the object's), lambda >= 0 only; the required
-       wrench from :func:`torchhand.synthesis.problem.required_wrench`. F_k = B_k lambda_k is kept; F_{k+1} ..
+       wrench from :func:`torchhand.synthesis.problem.required_wrench` (less the scene's ``external_wrench``, which
+       acts on the object: the contacts supply the rest). F_k = B_k lambda_k is kept; F_{k+1} ..
        are re-planned by the next window.
     2. Infeasible (Sec. 4.3): the per-frame LPs (:func:`~torchhand.kernels.force_plan.assemble_frame_lps`,
        :func:`torchhand.qp.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
@@ -69,7 +70,6 @@ from .snap import SNAP_TOL, hand_surface_in_object, snap_grasp, signed_distance
 __all__ = ["PlanSettings", "ForcePlan", "WindowRecord", "GraspUnsuitable", "plan_motion", "plan_forces"]
 
 _CONVERGED = int(SolverStatus.CONVERGED)
-_LP_TOL = 1e-7          # per-frame LP witness: largest violation, relative to 1 + |w|_inf (newtons)
 
 
 class GraspUnsuitable(RuntimeError):
@@ -79,10 +79,16 @@ class GraspUnsuitable(RuntimeError):
 
     frame: the infeasible frame; deficit: the wrench the contacts cannot produce there, (6,), N and N m (force,
     torque about the COM, world); contacts: hand contact links tried (including added ones)
+    window: the first frame of the window that failed (the frames before it were planned); partial: what was done
+    before it, set by the caller that did it (:func:`torchhand.manipulation.manipulate` sets the
+    :class:`~torchhand.manipulation.manipulate.ManipulationResult` of frames ``0 .. window - 1``, or None when
+    no frame was synthesized)
     """
 
-    def __init__(self, frame: int, deficit: np.ndarray, contacts: tuple):
+    def __init__(self, frame: int, deficit: np.ndarray, contacts: tuple, window: int | None = None):
         self.frame, self.deficit, self.contacts = int(frame), np.asarray(deficit, dtype=np.float64), tuple(contacts)
+        self.window = int(frame if window is None else window)
+        self.partial = None
         f, t = np.linalg.norm(self.deficit[:3]), np.linalg.norm(self.deficit[3:])
         super().__init__(f"the grasp cannot realise the motion at frame {self.frame}: wrench deficit "
                          f"{f:.3f} N and {t:.4f} N m with contacts {', '.join(self.contacts) or '-'} (force "
@@ -229,7 +235,7 @@ class _Geometry:
         inertia = torch.tensor(np.array(obj.inertia), dtype=torch.float64) * (mass / float(obj.mass))
         pose = scene.object_pose.double()
         com, wrench = required_wrench(pose, torch.tensor(np.array(obj.com), dtype=torch.float64), mass, inertia,
-                                      scene.gravity.double(), scene.fps)
+                                      scene.gravity.double(), scene.fps, external=scene.external_wrench)
         self.T = int(pose.shape[0])
         self.pose = pose.numpy()
         self.com, self.wrench = com.numpy(), wrench.numpy()
@@ -335,10 +341,10 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
 
     f_prev: B^{k-1} lambda^{k-1} per slot, (M, 3), newtons (M = hand contacts + table slots).
     z_prev: the previous window's solution, shifted by one frame into a warm start when its slots are the same.
-    method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started; the default: on these
-    problems the cold interior-point path can stop with a complementarity gap of ~1e-5 N^2 that its CONVERGED
-    test does not catch, docs/manipulation.md) or "ipm" (the fallback for thin feasible sets, where ADMM stalls
-    or declares infeasibility too early).
+    method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started when possible; the
+    default), "auto" (the kernel's choice: ADMM with a warm start, the interior point without) or "ipm" (the
+    interior point, cold; the fallback for thin feasible sets, where ADMM stalls or declares infeasibility too
+    early).
     Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args, z).
     """
     args = _window_arrays(c, geo, k, n, settings)
@@ -348,8 +354,8 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     if z_prev is not None and z_prev.shape[0] in (4 * M * n, 4 * M * (n + 1)):     # same slots: shift one frame
         z_prev = torch.as_tensor(z_prev)[4 * M:]
         warm = (torch.cat([z_prev, z_prev[-4 * M:]]) if z_prev.shape[0] < 4 * M * n else z_prev)[None], None, None
-    res = solve_convex_qp(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm if method == "admm" else None,
-                          method=method)
+    warm = warm if method != "ipm" else None
+    res = solve_convex_qp(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm, method=method)
     status = int(res.status[0])
     obj = float(res.objective[0] + qp.offset[0])
     if records is not None:
@@ -360,27 +366,22 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
 
 def _frame_feasible(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings,
                     records: list | None = None) -> tuple[np.ndarray, FrameLPs, torch.Tensor]:
-    """Per-frame LP feasibility of the window (Eq. 4 without objective), the n LPs in one batch.
-
-    Decided by the convex-QP kernel with Q = 0 (interior point first, then ADMM for the undecided): feasible iff
-    CONVERGED and the witness's own residuals (measured here, in newtons) are below ``_LP_TOL (1 + |b|)``; an LP
-    the kernel leaves undecided counts as infeasible. (:func:`torchhand.qp.lp_feasible` with ``method="admm"``
-    scales its tolerance with the iterate's size, so on nearly infeasible frames, whose ADMM iterates grow, it can
-    answer feasible where HiGHS proves infeasibility; docs/manipulation.md.)
+    """Per-frame LP feasibility of the window (Eq. 4 without objective), the n LPs in one batch, decided by
+    :func:`torchhand.qp.lp_feasible` with ``method="admm"`` (the convex-QP kernel with Q = 0 on unit rows; feasible
+    iff the witness's largest unit-row violation is below ``tol (1 + |h|_inf + |b|_inf)``, a bound that does not
+    grow with the witness; undecided counts as infeasible).
     Returns (feasible (n,), lps, witness z (n, 4 M)).
     """
+    from ..qp import lp_feasible
+
     args = _window_arrays(c, geo, k, n, settings)
     lps = assemble_frame_lps(**args)
     G, h, A, b = (x.flatten(0, 1) for x in lps)
-    Z = G.new_zeros(G.shape[0], G.shape[2], G.shape[2])
-    res = solve_convex_qp(Z, G.new_zeros(G.shape[0], G.shape[2]), G, h, A, b, method="ipm")
-    z = res.z
-    viol = torch.maximum((torch.einsum("bij,bj->bi", G, z) - h).clamp_min(0).amax(1),
-                         (torch.einsum("bij,bj->bi", A, z) - b).abs().amax(1))
-    feasible = ((res.status == _CONVERGED) & (viol <= _LP_TOL * (1 + b.abs().amax(1)))).numpy().copy()
+    res = lp_feasible(G, h, A, b, method="admm")
+    feasible = res.feasible.numpy().copy()
     if records is not None:
         records.append(WindowRecord(frame=k, lps=lps, feasible=feasible))
-    return feasible, lps, z
+    return feasible, lps, res.z
 
 
 def _wrench_fit(c: _Contacts, geo: _Geometry, t: int, settings: PlanSettings):
@@ -433,13 +434,21 @@ def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.nda
     if not feasible.all():
         t_bad = k + int(np.argmin(feasible))
         _, deficit = _wrench_fit(c, geo, t_bad, settings)
-        raise GraspUnsuitable(t_bad, deficit, tuple(geo.hand.link_names[l] for l in c.link))
+        raise GraspUnsuitable(t_bad, deficit, tuple(geo.hand.link_names[l] for l in c.link), window=k)
     return added
 
 
 def _qp(c, geo, k, n, f_prev, settings, records, z_prev=None):
-    """The window QP by ADMM (warm-started), then by the interior point when ADMM does not converge."""
-    out = plan_forces(c, geo, k, n, f_prev, settings, records, z_prev)
+    """The window QP by ADMM (warm-started from the previous window when its slots are the same), then by the
+    interior point when ADMM does not converge.
+
+    ADMM goes first for speed and for the motion's continuity, no longer to work around the kernel: the
+    interior point now meets the same CONVERGED test (complementarity row by row). The kernel's own choice
+    (``method="auto"``: the interior point whenever there is no warm start) agrees with Clarabel as closely and
+    gives the same box-turn motion to 3e-9 degrees, but on the test turn (box-turn frames 14-25, torque objective)
+    its slightly different forces at frames 0-1 led the synthesis to contacts that cannot hold frame 2
+    (docs/manipulation.md, "Solver notes")."""
+    out = plan_forces(c, geo, k, n, f_prev, settings, records, z_prev, method="admm")
     if out[2] != _CONVERGED:
         out = plan_forces(c, geo, k, n, f_prev, settings, records, method="ipm")
     return out

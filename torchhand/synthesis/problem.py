@@ -5,7 +5,8 @@
 * the hand models (one per wrist track) and their root poses;
 * the object's SDF grid, its surface samples (object frame) and per-frame poses;
 * the wrench the contacts must produce in every frame (Newton–Euler from finite differences of the object pose:
-  ``F = m (a - g)``, ``tau = I_w alpha + omega x I_w omega`` about the centre of mass, world frame);
+  ``F = m (a - g)``, ``tau = I_w alpha + omega x I_w omega`` about the centre of mass, world frame, less the
+  scene's ``external_wrench`` when it has one);
 * the object-table contacts (static or sliding, known from the object motion, Ye & Liu §4.3);
 * the contact patches of §4.2's initial case: for every frame and finger, the object-surface samples that lie in
   the fingertip's reachable volume (a voxelised cloud of fingertip positions over random finger poses, in the
@@ -24,6 +25,7 @@ import torch
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
 from ..collision import rigid_inverse
+from ..errors import ShapeError
 from ..hand.mount import track_hand
 from ..hand.model import HandModel
 from ..objects import sample_surface
@@ -96,13 +98,17 @@ class SynthesisProblem:
 
 
 def required_wrench(object_pose: torch.Tensor, com_local: torch.Tensor, mass: float, inertia: torch.Tensor,
-                    gravity: torch.Tensor, fps: float) -> tuple[torch.Tensor, torch.Tensor]:
+                    gravity: torch.Tensor, fps: float, external: torch.Tensor | None = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """Newton–Euler wrench the contacts must apply to follow the object trajectory.
 
     object_pose: (T, 4, 4) world; com_local: (3,) object frame; inertia: (3, 3) about the COM, object axes;
-    gravity: (3,) m/s^2. Velocities and accelerations are central finite differences (one-sided at the ends,
-    zero for a single frame); angular velocity from the rotation log (kornia) of consecutive frames.
-    Returns (com (T, 3) world, wrench (T, 6)).
+    gravity: (3,) m/s^2; external: a known wrench acting ON the object besides gravity and the contacts
+    (:attr:`torchhand.scene.Scene.external_wrench`), (T, 6), force (N) and torque about the COM (N m), world, or
+    None. Velocities and accelerations are central finite differences (one-sided at the ends, zero for a single
+    frame); angular velocity from the rotation log (kornia) of consecutive frames.
+    Returns (com (T, 3) world, wrench (T, 6)): what the contacts must supply, ``(m (a - g), I_w alpha + omega x
+    I_w omega) - external``.
     """
     T = object_pose.shape[0]
     R = object_pose[:, :3, :3]
@@ -126,7 +132,12 @@ def required_wrench(object_pose: torch.Tensor, com_local: torch.Tensor, mass: fl
     Iw = (I_w @ omega[..., None]).squeeze(-1)
     torque = (I_w @ alpha[..., None]).squeeze(-1) + torch.cross(omega, Iw, dim=-1)
     force = mass * (acc - gravity)
-    return com, torch.cat([force, torque], -1)
+    wrench = torch.cat([force, torque], -1)
+    if external is not None:
+        if tuple(external.shape) != (T, 6):
+            raise ShapeError(f"external: expected shape ({T}, 6) (as object_pose's T), got {tuple(external.shape)}")
+        wrench = wrench - external.to(dtype=wrench.dtype, device=wrench.device)
+    return com, wrench
 
 
 def finger_workspace(hand: HandModel, generator: torch.Generator, samples: int = 4096,
@@ -206,7 +217,7 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
     obj = scene.object
     com64, wrench64 = required_wrench(pose64, torch.tensor(np.array(obj.com), dtype=torch.float64), obj.mass,
                                       torch.tensor(np.array(obj.inertia), dtype=torch.float64), scene.gravity.double(),
-                                      scene.fps)
+                                      scene.fps, external=scene.external_wrench)
     sdf = SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(device, dtype)
     pts, nrm = sample_surface(obj.mesh, surface_samples, generator, dtype=torch.float64)
     # points in the wrist frame of every hand and frame: (H, T, S, 3)
