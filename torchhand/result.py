@@ -97,6 +97,8 @@ class Solution:
     friction: the hand-object friction coefficient the writer used, or None when the file has none
     reconstructed: ``q`` is the smoothed motion (False: the searched poses, kept unsmoothed)
     format_version: the file's ``format_version``, 0 for files written before versioning
+    object_mass: the object's mass this solution was made with, kg (optional key ``variant_mass``: rollouts of
+        other masses in one directory), or None when the file has none (the scene's mass applies)
     """
 
     path: Path
@@ -118,6 +120,7 @@ class Solution:
     friction: float | None
     reconstructed: bool
     format_version: int
+    object_mass: float | None = None
 
     @property
     def T(self) -> int:
@@ -459,6 +462,9 @@ def solution_from_arrays(data: dict, path) -> Solution:
     friction = float(z.scalar("friction", "fiu")) if z.has("friction") else None
     if friction is not None and not (np.isfinite(friction) and friction >= 0):
         raise FileFormatError(f"{p}: friction: expected a non-negative number, got {friction}")
+    mass = float(z.scalar("variant_mass", "fiu")) if z.has("variant_mass") else None
+    if mass is not None and not (np.isfinite(mass) and mass > 0):
+        raise FileFormatError(f"{p}: variant_mass: expected a positive number of kg, got {mass}")
     m = _SOL_NAME.match(p.name)
     return Solution(
         path=p, index=int(m.group(1)) if m else -1, hands=tuple(hands), fps=fps,
@@ -475,4 +481,5 @@ def solution_from_arrays(data: dict, path) -> Solution:
         friction=friction,
         reconstructed=bool(z.scalar("reconstructed", "biu")),
         format_version=version,
+        object_mass=mass,
     )

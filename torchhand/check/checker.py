@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from types import MappingProxyType
@@ -93,12 +94,23 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
         hands[hs.side] = pose_hand(result.hand_models[hs.side], hs.side, hs.q, hs.joint_names, hs.root_pose,
                                    sol.path)
     files = {hs.side: _hand_file(result, k, hs.side) for k, hs in enumerate(sol.hands)}
+    mass, obj = _solution_mass(sol, result.scene, obj)
     fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits, files)
-    fig.update(_contact_figures(sol, result.scene, hands, obj, limits, files))
-    q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier)
+    fig.update(_contact_figures(sol, result.scene, hands, obj, limits, files, mass))
+    q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier, mass)
     fig.update(joint_figs)
     ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
     return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered), q_all
+
+
+def _solution_mass(sol: Solution, scene, obj: ObjectMesh) -> tuple[float, ObjectMesh]:
+    """The object's mass for this solution and its mass properties: the solution's own ``variant_mass`` when the
+    file holds one (rollouts of other masses in one directory), else the scene's. The inertia of a uniform body
+    scales with its mass; the centre of mass does not."""
+    m = sol.object_mass
+    if m is None or m == scene.object.mass:
+        return float(scene.object.mass), obj
+    return float(m), dataclasses.replace(obj, inertia=obj.inertia * (float(m) / float(scene.object.mass)))
 
 
 def _columns(arrays: list, labels: list) -> tuple[np.ndarray, list]:
@@ -173,7 +185,7 @@ def _finger_depth(sol: Solution, h: PosedHand, pairs: np.ndarray, xml: Path | No
 
 
 def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: ObjectMesh, limits: dict,
-                     files: dict | None = None) -> dict:
+                     files: dict | None = None, mass: float | None = None) -> dict:
     first_side = next(iter(hands))
     slots = contact_slots(hands, sol.contact_link_name, sol.contact_link, sol.contact_mask, sol.path)
     gap_obj, gap_hand, closest, tri = contact_gaps(hands, slots, sol.contact_point, obj, sol.object_pose)
@@ -194,7 +206,8 @@ def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: Obj
         name = sol.contact_link_name[int(sol.contact_link[t, k])]
         return f"contact {k}, {name if '/' in name else f'{first_side}/{name}'}"
 
-    weight = scene.object.mass * max(float(np.linalg.norm(scene.gravity.numpy())), 1e-12)
+    mass = scene.object.mass if mass is None else mass
+    weight = mass * max(float(np.linalg.norm(scene.gravity.numpy())), 1e-12)
     hand_cone, table_cone = cone_violations(slots, sol.contact_force, closest, tri, obj, sol.object_pose,
                                             scene.friction, sol.env_contact_mask, sol.env_contact_force,
                                             scene.environment.friction, 1e-6 * weight)
@@ -209,8 +222,11 @@ def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: Obj
 
 
 def _motion_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict,
-                    earlier) -> tuple[np.ndarray, dict]:
-    f_err, t_err = balance_errors(sol, obj, scene.object.mass, scene.gravity.numpy().astype(np.float64))
+                    earlier, mass: float | None = None) -> tuple[np.ndarray, dict]:
+    mass = scene.object.mass if mass is None else mass
+    ext = getattr(scene, "external_wrench", None)
+    f_err, t_err = balance_errors(sol, obj, mass, scene.gravity.numpy().astype(np.float64),
+                                  **({"external": ext} if ext is not None else {}))
     fig = {"force_error": Figure.worst("force_error", f_err[:, None], limits["force_error"],
                                        lambda t, x: "object"),
            "torque_error": Figure.worst("torque_error", t_err[:, None], limits["torque_error"],

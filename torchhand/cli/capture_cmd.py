@@ -1,4 +1,5 @@
-"""``torchhand capture estimate|synthetic``: interaction capture (Kry & Pai 2006), docs/interaction_capture.md.
+"""``torchhand capture estimate|synthetic|resynthesize|from-result``: interaction capture (Kry & Pai 2006),
+docs/interaction_capture.md.
 
 ``torchhand capture estimate CAPTURE.npz --out DIR``
     Joint torques tau = J^T f over the 6 + D coordinates, contact events from the force tracks, the compliance of
@@ -20,11 +21,20 @@
     rollout each. Writes the result directory of docs/result_format.md (stats.json method "kry_pai", one
     solutions/sol_XXX.npz per completed rollout). Exit 0 written; 1 every rollout stopped at an unsolved LCP
     (the step is named); 2 bad input.
+
+``torchhand capture from-result RESULT --out DIR``
+    An inferred interaction from a ``torchhand synthesize`` result: the solution's contact forces (negated: on the
+    hand) at the contact points in their link frames as DIR/capture.npz (source "inferred"), and DIR/interaction.npz
+    with C(t) from a Kry & Pai Table 1 preset and theta_r = theta - C tau, tau = sum J^T f over the 6 + D
+    coordinates. Also DIR/hand.xml (the capture's hand), DIR/scene/ (the result's scene over the frames used) and
+    DIR/summary.json. Exit 0 written; 2 bad input (a missing result, a bad --solution or --frames, an existing
+    output without --overwrite).
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from pathlib import Path
 
@@ -110,6 +120,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="rollout dtype (float64)")
     add_threads_argument(r)
     r.set_defaults(func=run_resynthesize)
+
+    f = verbs.add_parser("from-result", help="an inferred interaction from a synthesis result's contact forces",
+                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    f.add_argument("result", metavar="RESULT", help="a `torchhand synthesize` result directory")
+    f.add_argument("--solution", type=int, default=0, metavar="N", help="solution index (0)")
+    f.add_argument("--frames", default=None, metavar="A:B",
+                   help="the solution's frames A <= t < B to use (default: all; choose the part that holds the "
+                        "object)")
+    f.add_argument("--compliance", default="table1-exploring", choices=["table1-exploring", "table1-scratching"],
+                   help="compliance of every coordinate (Kry & Pai Table 1, extended; default table1-exploring)")
+    f.add_argument("--out", required=True, metavar="DIR",
+                   help="output directory (new or empty; an earlier output with --overwrite)")
+    f.add_argument("--overwrite", action="store_true", help="replace an earlier output in --out")
+    add_threads_argument(f)
+    f.set_defaults(func=run_from_result)
 
 
 def _check_window(value: float, name: str) -> None:
@@ -206,6 +231,32 @@ def run_resynthesize(args) -> int:
     print(f"{len(ok)}/{len(result.rollouts)} rollouts completed, {result.timings['per_step_ms']:.1f} ms per step; "
           f"wrote {out}")
     return 0 if ok else 1
+
+
+def run_from_result(args) -> int:
+    import numpy as np
+
+    from torchhand.interaction.inferred import infer_interaction, prepare_inferred_dir, write_inferred
+
+    apply_threads(args.threads)
+    created = not Path(args.out).exists()
+    out = prepare_inferred_dir(Path(args.out), overwrite=args.overwrite)
+    try:
+        inf = infer_interaction(args.result, solution=args.solution, frames=args.frames, compliance=args.compliance)
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)   # the directory this run made, still empty
+        raise
+    write_inferred(inf, out)
+    fmag = np.linalg.norm(inf.capture.force, axis=-1).sum(1)
+    a, b = inf.frames
+    print(f"solution {inf.solution}, frames {a}:{b} ({inf.T} at {inf.capture.fps:g} fps): "
+          f"{inf.capture.num_sensors} force sensors, total force on the hand up to {fmag.max():.3g} N "
+          f"(inferred), compliance {inf.compliance}; largest |theta - theta_r|: root "
+          f"{np.abs(inf.theta - inf.theta_r)[:, :3].max():.3g} rad, joints "
+          f"{np.abs(inf.theta - inf.theta_r)[:, 6:].max():.3g} rad")
+    print(f"wrote {out / 'capture.npz'}, {out / 'interaction.npz'}, {out / 'scene'}/")
+    return 0
 
 
 def run_synthetic(args) -> int:
