@@ -33,7 +33,9 @@ Constraints (linearised at every iteration)
       from t_e on they obey Eq. 6 (Eq. 7 from the frame after).
 
 Solver (Sec. 5.3 says SQP): Gauss-Newton on ``|r(x)|^2`` with ``r = u - u_bar`` over x = (root twist, q, s): the
-Jacobian of r by batched forward differences (one batched call per iteration); each step is a dense convex QP
+Jacobian of r analytic (``dJ^T f / dq`` from the joint axes, :mod:`.torque_derivs`, with the point Jacobians and the
+link poses from the same single kinematics pass), or, with ``SynthSettings(derivatives="finite")``, by batched
+forward differences of :func:`torques` (one batched call per iteration); each step is a dense convex QP
 (Gauss-Newton Hessian, the proximal terms and Levenberg-Marquardt damping) solved by a Goldfarb-Idnani dual
 active-set method (:func:`dense_qp`); a step that raises the l1 merit ``|r|^2 + prox + w |violation|_1`` is rejected
 and the damping raised; an infeasible step goes to elastic mode (l1 slacks on the equalities); after ``max_iters``
@@ -58,12 +60,20 @@ object; f is the force of the hand on the object.
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from ..errors import InputValueError
+from .torque_derivs import (
+    TreeOrder,
+    point_jacobian,
+    torques_and_derivatives,
+    tree_order,
+    tree_state,
+)
 
 SETTLE_WEIGHT = 100.0
 """Weight of the soft no-slip rows of the first frame, N m per metre."""
@@ -94,6 +104,9 @@ class SynthSettings:
     boundary: a planned force with |f.t1| + |f.t2| >= boundary mu f.n lies on the cone boundary (may slide)
     slip_speed: a contact whose material points move apart tangentially faster than this slides, m/s
     voxel: SDF grid spacing of the object, metres
+    derivatives: "analytic" (the Jacobian of the torques and the point Jacobians from one kinematics pass,
+        :mod:`.torque_derivs`) or "finite" (batched forward differences of :func:`torques`, step 1e-7; kept for
+        comparison)
     """
 
     objective: str = "torque"
@@ -110,10 +123,13 @@ class SynthSettings:
     boundary: float = 0.97
     slip_speed: float = 1e-3
     voxel: float = 0.001
+    derivatives: str = "analytic"
 
     def __post_init__(self):
         if self.objective not in ("torque", "pose"):
             raise InputValueError(f"objective: expected 'torque' or 'pose', got {self.objective!r}")
+        if self.derivatives not in ("analytic", "finite"):
+            raise InputValueError(f"derivatives: expected 'analytic' or 'finite', got {self.derivatives!r}")
         for name in ("joint_speed", "root_speed", "root_rate", "prox_q", "prox_x", "prox_h", "h_step", "voxel",
                      "slip_speed"):
             v = getattr(self, name)
@@ -183,6 +199,7 @@ class SynthContext:
         lim = self.hand.joint_limits.numpy()
         self.q_lo, self.q_hi = lim[:, 0], lim[:, 1]
         self.D = self.hand.num_joints
+        self.order = tree_order(self.hand)
 
     def object_normals(self, points: np.ndarray) -> np.ndarray:
         """Outward unit normals of the object at object-frame points (P, 3): the SDF grid's gradient, continuous
@@ -238,7 +255,14 @@ def exp_rot(w: np.ndarray) -> np.ndarray:
 
 
 def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (3, 3) -> (3,)."""
+    """Rotation vector of a rotation matrix (3, 3) -> (3,): the angle from atan2(|w| / 2, (tr R - 1) / 2), w the
+    skew part (accurate at small angles); beyond about 154 degrees, where the skew part loses the axis, SciPy's."""
+    R = np.asarray(R, dtype=np.float64)
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    if c > -0.9:
+        w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+        sn = 0.5 * math.sqrt(w @ w)
+        return w * (0.5 / c if sn < 1e-12 else math.atan2(sn, c) / (2.0 * sn))
     from scipy.spatial.transform import Rotation
     return Rotation.from_matrix(R).as_rotvec()
 
@@ -247,7 +271,10 @@ def rotvec(R: np.ndarray) -> np.ndarray:
 def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
              max_iters: int = 200, tol: float = 1e-10):
     """``min 1/2 x^T H x + g^T x  s.t.  A x = b, C x <= d`` for a small dense strictly convex QP (H positive
-    definite), by the Goldfarb-Idnani dual active-set method (KKT systems solved densely at every change).
+    definite), by the Goldfarb-Idnani dual active-set method. The KKT system of every active set is solved through
+    its Schur complement ``N H^-1 N^T`` (m x m, m the active rows) with H^-1 from one Cholesky factorisation of
+    the diagonally scaled H; a badly scaled H (diagonal ratio above 1e8, such as the elastic mode's 1e-9 slack
+    weights, where the Schur route loses accuracy) solves the full KKT matrix densely at every change.
 
     returns: (x (n,), status: 0 solved, 1 infeasible, 2 iteration limit, largest violation left)
     """
@@ -255,8 +282,35 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
     N_eq = [A[i] for i in range(A.shape[0])]
     act: list[int] = []                                       # active inequality rows
     u = np.zeros(0)                                           # multipliers of act (>= 0)
+    Hinv = None
+    dg = np.diag(H)
+    if n and dg.min() > 0 and dg.max() <= 1e8 * dg.min():
+        sc = 1.0 / np.sqrt(dg)
+        try:
+            Li = np.linalg.inv(np.linalg.cholesky(H * sc[:, None] * sc[None, :])) * sc[None, :]
+            Hinv = Li.T @ Li
+            WA, WC = A @ Hinv, C @ Hinv                       # rows of N H^-1, each constraint's once
+        except np.linalg.LinAlgError:
+            Hinv = None
+
+    def kkt_schur(rhs_x, rhs_c):
+        """H x - N^T y = rhs_x, -N x = rhs_c: y = -(N H^-1 N^T)^-1 (rhs_c + N H^-1 rhs_x), x = H^-1 (rhs_x + N^T y)."""
+        xh = Hinv @ rhs_x
+        if not act and A.shape[0] == 0:
+            return xh, np.zeros(0)
+        Nm = np.concatenate([A, -C[act]], 0) if act else A
+        W = np.concatenate([WA, -WC[act]], 0) if act else WA
+        S = W @ Nm.T
+        rhs = -(rhs_c + Nm @ xh)
+        try:
+            y = np.linalg.solve(S, rhs)
+        except np.linalg.LinAlgError:
+            y = np.linalg.lstsq(S, rhs, rcond=None)[0]
+        return xh + W.T @ y, y
 
     def kkt(rhs_x, rhs_c):
+        if Hinv is not None:
+            return kkt_schur(rhs_x, rhs_c)
         Nm = np.array(N_eq + [-C[j] for j in act]).reshape(-1, n)     # constraint normals n^T x >= b form
         m = Nm.shape[0]
         K = np.zeros((n + m, n + m))
@@ -281,11 +335,11 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
             z, r = kkt(n_p, np.zeros(A.shape[0] + len(act)))   # primal direction, multiplier change
             r_act = -r[A.shape[0]:]
             t1, drop = np.inf, -1
-            for j, rj in enumerate(r_act):
-                if rj > 1e-14:
-                    tj = u[j] / rj
-                    if tj < t1:
-                        t1, drop = tj, j
+            pos = r_act > 1e-14
+            if pos.any():                                       # dual step: the first multiplier to reach zero
+                ratios = np.where(pos, u / np.where(pos, r_act, 1.0), np.inf)
+                drop = int(np.argmin(ratios))
+                t1 = float(ratios[drop])
             nz = float(n_p @ z)
             if np.abs(H @ z).max() <= 1e-9 * np.abs(n_p).max() or nz <= 0:     # dependent on the active set
                 if drop < 0:
@@ -382,19 +436,18 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     base = np.concatenate([[0.02] * 3, [0.005] * 3, [0.05] * D, 0.002 / seg_len])
     s_step = st.h_step * (10.0 if settle else 1.0) / seg_len  # settling may move h onto the capsule's facing side
 
-    def contact_points(q, root, s):
-        """Axis points c (H, 3) link frame, hand points h (H, 3) link frame, and the world quantities."""
-        c = ca + s[:, None] * seg
-        c = np.where(movable[:, None], c, start.h)
-        T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
-        Rl = T[links, :3, :3]
-        cw = np.einsum("hij,hj->hi", Rl, c) + T[links, :3, 3]
-        return c, cw, T
+    analytic = st.derivatives == "analytic"
 
     def linearise(q, root, s):
         """Residuals, constraints and bounds at (q, root, s); also the hand points h."""
-        c, cw, T = contact_points(q, root, s)
+        c = np.where(movable[:, None], ca + s[:, None] * seg, start.h)    # axis points, link frame
+        if analytic:                                                       # one kinematics pass serves all below
+            ts = tree_state(ctx.order, q, root)
+            T = ts.T
+        else:
+            T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
         Rl = T[links, :3, :3]
+        cw = np.einsum("hij,hj->hi", Rl, c) + T[links, :3, 3]
         ax_w = np.einsum("pij,pj->pi", T[ctx.ax_link, :3, :3], ctx.ax_local) + T[ctx.ax_link, :3, 3]
         qpts = np.concatenate([cw, ax_w], 0)
         sd, grad = ctx.sdf.query_with_grad(torch.as_tensor(((qpts - os_) @ Rs)[None]))
@@ -402,8 +455,14 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         sd_c, g_c, sd_a, g_a = sd[:H], grad[:H], sd[H:], grad[H:]
         n_c = g_c / np.maximum(np.linalg.norm(g_c, axis=-1, keepdims=True), 1e-12)
         h = np.where(movable[:, None], c - cr[:, None] * np.einsum("hji,hj->hi", Rl, n_c), start.h)
-        # ---- the objective residual and its Jacobian (forward differences, one batched call)
-        if st.objective == "torque":
+        # ---- the objective residual and its Jacobian (analytic, or forward differences in one batched call)
+        if st.objective == "torque" and analytic:
+            u, du_dx, du_dp = torques_and_derivatives(ctx.order, ts, links, h, f_use, ctx.gravity)
+            r = u - ctx.u_bar
+            Jr = np.zeros((N, nv))
+            Jr[:, :N] = du_dx
+            Jr[:, N:] = np.einsum("hnc,hc->nh", du_dp, np.einsum("hij,hj->hi", Rl, seg)) * movable[None]
+        elif st.objective == "torque":
             Qb, Rb, Hb = _pose_batch(root, q, h, 1e-7, False)
             Hs = np.repeat(h[None], H, 0)
             Hs[np.arange(H), np.arange(H)] += 1e-7 * seg
@@ -420,12 +479,16 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
                              st.prox_h * seg_len * (s - s_prev)])
         Jp = np.diag(np.concatenate([np.full(3, wq), np.full(3, wx), np.full(D, wq), st.prox_h * seg_len]))
         # ---- kinematics of the points involved
-        pts_local = np.concatenate([c, prev.h, ctx.ax_local], 0)
-        pts_link = np.concatenate([links, links, ctx.ax_link])
-        J_all = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(pts_link), torch.as_tensor(pts_local),
-                                    torch.as_tensor(root)[None], wrt_root=True)[0].numpy()
-        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:]
         xm = np.einsum("hij,hj->hi", Rl, prev.h) + T[links, :3, 3]
+        pts_link = np.concatenate([links, links, ctx.ax_link])
+        if analytic:
+            J_all = point_jacobian(ctx.order, ts, pts_link, np.concatenate([cw, xm, ax_w], 0))
+        else:
+            pts_local = np.concatenate([c, prev.h, ctx.ax_local], 0)
+            J_all = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(pts_link),
+                                        torch.as_tensor(pts_local), torch.as_tensor(root)[None],
+                                        wrt_root=True)[0].numpy()
+        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:]
         A_rows, b_rows, C_rows, d_rows = [], [], [], []
         eq_viol, in_viol, soft_r, soft_J = [], [], [], []
         w_rows = []
@@ -485,15 +548,15 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         ax_r = ctx.ax_radius
         lim_obj = sd_a - ax_r
         lb = np.minimum(-st.margin, lim_obj)
-        for j in np.flatnonzero(lim_obj < 0.01):
-            C_rows.append(-(g_a[j] @ _pad(Ja[j], nv)))
-            d_rows.append(lim_obj[j] - lb[j])
+        near = np.flatnonzero(lim_obj < 0.01)
+        C_rows.extend(_pad(-np.einsum("pc,pcn->pn", g_a[near], Ja[near]), nv))
+        d_rows.extend(lim_obj[near] - lb[near])
         if ctx.table is not None:
             lim_tab = ax_w[:, 2] - ax_r - ctx.table
             lbt = np.minimum(-st.margin, lim_tab)
-            for j in np.flatnonzero(lim_tab < 0.01):
-                C_rows.append(-_pad(Ja[j], nv)[2])
-                d_rows.append(lim_tab[j] - lbt[j])
+            near = np.flatnonzero(lim_tab < 0.01)
+            C_rows.extend(_pad(-Ja[near, 2], nv))
+            d_rows.extend(lim_tab[near] - lbt[near])
         # bounds: joint limits and speeds, root speeds, the axis parameter
         dq_max = st.joint_speed * dt
         lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
@@ -594,16 +657,37 @@ def _pad(J: np.ndarray, nv: int) -> np.ndarray:
 
 
 def _tangents(n: np.ndarray):
-    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = np.cross(n, a)
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(n, t1)
+    """Two unit tangents (t1, t2) of a unit normal n (3,): t1 = n x a / |n x a| (a = x, or y when n is near x),
+    t2 = n x t1 (written out: np.cross's overhead dominates at this size)."""
+    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
+    if abs(n0) < 0.9:                                     # n x (1, 0, 0)
+        t1 = np.array([0.0, n2, -n1])
+    else:                                                 # n x (0, 1, 0)
+        t1 = np.array([-n2, 0.0, n0])
+    t1 /= math.sqrt(t1 @ t1)
+    a0, a1, a2 = t1
+    return t1, np.array([n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0])
+
+
+_TREES: dict = {}
+
+
+def _tree(hand) -> TreeOrder:
+    """The NumPy tree of ``hand`` (cached per model object)."""
+    key = id(hand)
+    hit = _TREES.get(key)
+    if hit is None or hit[0]() is not hand:
+        hit = (weakref.ref(hand), tree_order(hand))
+        if len(_TREES) > 64:
+            _TREES.clear()
+        _TREES[key] = hit
+    return hit[1]
 
 
 def _points(hand, q, root, links, local) -> np.ndarray:
     """World positions of link-frame points, (P, 3)."""
     if len(links) == 0:
         return np.zeros((0, 3))
-    T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
+    T = tree_state(_tree(hand), np.asarray(q, dtype=np.float64), np.asarray(root, dtype=np.float64)).T
     Tl = T[np.asarray(links)]
     return np.einsum("pij,pj->pi", Tl[:, :3, :3], local) + Tl[:, :3, 3]
