@@ -3,7 +3,9 @@
 Each built-in scene is made deterministically from code (no files, no randomness): the object mesh from trimesh
 primitives, the object and wrist trajectories from smooth closed-form profiles. They follow the examples of Ye & Liu
 (2012): turning and lifting a box on a table, turning a small bottle, a mug, and a two-hand box lift.
-See :mod:`torchhand.scenes.builtin` for what each one contains.
+See :mod:`torchhand.scenes.builtin` for what each one contains. The ``liu-*`` scenes
+(:mod:`torchhand.scenes.liu`) follow the examples of Liu (2009) and each ships the grasp that ``torchhand
+manipulate`` starts from (:func:`torchhand.scenes.liu.grasp_path`).
 
     >>> from torchhand.scenes import list_builtin_scenes, builtin_scene
     >>> scene = builtin_scene("box-turn")
@@ -60,3 +62,4 @@ def builtin_scene_description(name: str) -> str:
 
 
 from . import builtin  # noqa: E402,F401  (registers the scenes)
+from . import liu  # noqa: E402,F401  (registers the Liu 2009 scenes)

@@ -1,0 +1,182 @@
+"""The built-in Liu 2009 scenes (torchhand/scenes/liu.py) and their packaged grasps: every scene builds the same way
+twice, its grasp loads against the scene's hand and touches the object (distances measured with trimesh), and one
+scene runs end to end through ``torchhand manipulate`` and ``torchhand check`` with its sliding table contacts
+checked against the box's own motion and its static hand contacts checked for slip."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from torchhand.cli import main as cli
+from torchhand.hand.mount import track_hand
+from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
+from torchhand.scenes import builtin_scene, list_builtin_scenes
+from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
+from torchhand.scenes.liu import LIU_SCENES, grasp_path
+
+
+@pytest.mark.parametrize("name", LIU_SCENES)
+def test_scene_builds_deterministically(name):
+    assert name in list_builtin_scenes()
+    a, b = builtin_scene(name), builtin_scene(name)
+    a.validate()
+    assert 30 <= a.T <= 60 and a.fps == FPS and a.hands[0].side == "right"
+    assert torch.equal(a.object_pose, b.object_pose) and torch.equal(a.hands[0].wrist_pose, b.hands[0].wrist_pose)
+    # at rest on the table at frame 0: the lowest vertex at the table height (trimesh transforms the mesh)
+    lowest = a.object.mesh.copy().apply_transform(a.object_pose[0].numpy()).vertices[:, 2].min()
+    assert abs(lowest - TABLE_HEIGHT) < 1e-9
+
+
+def test_scene_motions():
+    """What each example does, measured on its object poses: the drag moves 12 cm along x on the table, the lift
+    10 cm up, the pivot tips 30 degrees with the pivot edge's two vertices fixed on the table, and the push holds the
+    box still in the air while the external force goes +3 N -> -3 N along y."""
+    drag = builtin_scene("liu-drag").object_pose.numpy()
+    assert np.allclose(drag[-1, :3, 3] - drag[0, :3, 3], [0.12, 0, 0], atol=1e-12)
+    lift = builtin_scene("liu-lift")
+    assert lift.object.mass == 1.5
+    assert np.isclose(lift.object_pose[-1, 2, 3] - lift.object_pose[0, 2, 3], 0.10, atol=1e-12)
+    pivot = builtin_scene("liu-pivot")
+    P = pivot.object_pose.numpy()
+    edge = pivot.object.mesh.vertices[np.isclose(pivot.object.mesh.vertices[:, 0], pivot.object.mesh.bounds[0, 0])
+                                      & np.isclose(pivot.object.mesh.vertices[:, 2], pivot.object.mesh.bounds[0, 2])]
+    assert len(edge) == 2
+    world = np.einsum("tij,kj->tki", P[:, :3, :3], edge) + P[:, None, :3, 3]
+    assert np.abs(world - world[0]).max() < 1e-12 and np.allclose(world[..., 2], TABLE_HEIGHT, atol=1e-12)
+    tilt = np.degrees(np.arccos(P[-1, 2, 2]))
+    assert abs(tilt - 30.0) < 1e-9
+    push = builtin_scene("liu-push")
+    w = push.external_wrench.numpy()
+    assert np.isclose(w[:, 1].max(), 3.0) and np.isclose(w[:, 1].min(), -3.0)
+    assert np.abs(w[:, [0, 2, 3, 4, 5]]).max() == 0 and w[0, 1] == 0 and w[-1, 1] == 0
+    moving = np.abs(w[:, 1]) > 0
+    assert np.abs(push.object_pose.numpy()[moving] - push.object_pose.numpy()[moving][0]).max() < 1e-12
+
+
+@pytest.mark.parametrize("name", LIU_SCENES)
+def test_packaged_grasp_touches_the_object(name):
+    """The packaged grasp loads against the scene's hand (joint names, limits), and re-snapping it onto the scene's
+    object finds contacts within the 5 mm tolerance; the contact links' hand points lie within 5 mm of the mesh and
+    the object points on it, both measured with trimesh's closest-point query."""
+    scene = builtin_scene(name)
+    path = grasp_path(name)
+    assert path is not None and path.is_file() and path.name == f"{name}.npz"
+    hand = track_hand(scene.hands[0])
+    g = load_grasp(path, hand)
+    assert g.side == "right" and g.hand == "default" and len(g.contact_links) >= 3
+    mesh = scene.object.mesh
+    pq = trimesh.proximity.ProximityQuery(mesh)
+    assert np.abs(pq.signed_distance(g.contact_object)).max() < 1e-6
+    T = hand.forward_kinematics(torch.as_tensor(g.q)[None], torch.as_tensor(g.wrist_in_object)[None])[0].numpy()
+    idx = [list(hand.link_names).index(n) for n in g.contact_links]
+    pts = np.einsum("kij,kj->ki", T[idx, :3, :3], g.contact_hand) + T[idx, :3, 3]
+    d = np.abs(pq.signed_distance(pts))
+    print(f"{name}: {len(idx)} contacts, hand points {1e3 * d.max():.2f} mm from the mesh at most")
+    assert d.max() <= 0.005
+    again, report = snap_grasp(g, grasp_hand(g), mesh)
+    assert set(g.contact_links) <= set(again.contact_links) and np.abs(report.after).max() <= 0.005
+
+
+def test_grasp_path_is_none_for_other_names():
+    assert grasp_path("box-turn") is None and grasp_path("no-such-scene") is None and grasp_path(3) is None
+
+
+def _fk_world(hand, q, root, links, local):
+    T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
+    Tl = T[links]
+    return np.einsum("kij,kj->ki", Tl[:, :3, :3], local) + Tl[:, :3, 3]
+
+
+def test_drag_end_to_end(tmp_path):
+    """``torchhand manipulate liu-drag`` with its packaged grasp, then ``torchhand check``: every figure passes.
+    The table contacts slide: their friction force opposes the box's velocity (from its poses, cos <= -0.95 where
+    the box moves faster than 1 cm/s); the hand's static contacts slip at most 1 mm/s."""
+    out = tmp_path / "drag"
+    assert cli(["manipulate", "liu-drag", "--grasp", str(grasp_path("liu-drag")), "--out", str(out), "--threads",
+                "1", "--no-progress"]) == 0
+    assert cli(["check", str(out)]) == 0
+    z = np.load(out / "solutions" / "sol_000.npz")
+    stats = json.loads((out / "stats.json").read_text())
+    print(f"liu-drag: {z['q'].shape[0]} frames, {stats['frames_per_second']:.1f} frames/s, "
+          f"{stats['added_contacts']} added")
+    pose = z["object_pose"]
+    scene = builtin_scene("liu-drag")
+    assert np.allclose(pose, scene.object_pose.numpy(), atol=1e-12)
+    # sliding table contacts: friction against the motion
+    v = np.gradient(pose[:, :3, 3], 1.0 / FPS, axis=0)
+    worst, n = 1.0, 0
+    for t in range(pose.shape[0]):
+        if np.linalg.norm(v[t]) < 0.01:
+            continue
+        for k in np.flatnonzero(z["env_contact_mask"][t]):
+            f = z["env_contact_force"][t, k]
+            ft = f - f[2] * np.array([0.0, 0.0, 1.0])
+            if np.linalg.norm(ft) > 1e-6:
+                worst = min(worst, -float(ft @ v[t]) / (np.linalg.norm(ft) * np.linalg.norm(v[t])))
+                n += 1
+    print(f"sliding table contacts: {n}, smallest cos(friction, -velocity) {worst:.4f}")
+    assert n > 0 and worst >= 0.95
+    # static hand contacts: tangential speed of the material points
+    g = load_grasp(grasp_path("liu-drag"))
+    hand = grasp_hand(g)
+    names = [str(s) for s in z["contact_link_name"]]
+    link_ids = np.array([list(hand.link_names).index(s) for s in names])
+    slip, pairs = 0.0, 0
+    for t in range(1, pose.shape[0]):
+        static = (z["contact_mask"][t] & z["contact_mask"][t - 1] & ~z["contact_sliding"][t]
+                  & ~z["contact_added"][t])
+        if not static.any():
+            continue
+        ks = np.flatnonzero(static)
+        pairs += len(ks)
+        links = link_ids[z["contact_link"][t - 1, ks]]
+        h, p = z["contact_hand_local"][t - 1, ks], z["contact_object_local"][t - 1, ks]
+        rel = [_fk_world(hand, z["q"][s], z["root_pose"][s], links, h) - (p @ pose[s][:3, :3].T + pose[s][:3, 3])
+               for s in (t - 1, t)]
+        vel = (rel[1] - rel[0]) * FPS
+        nrm = z["contact_normal"][t, ks]
+        vt = vel - (vel * nrm).sum(-1, keepdims=True) * nrm
+        slip = max(slip, float(np.linalg.norm(vt, axis=-1).max()))
+    print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
+    assert pairs >= pose.shape[0] and slip <= 1e-3
+
+
+def test_push_forces_balance_the_external_force():
+    """liu-push, planning only (rigid grasp): while the lifted box is still (object poses equal), the contact
+    forces sum to -(m g + F_ext) with F_ext the scene's push (+3 N -> -3 N along y), within 1e-6 of the weight."""
+    from torchhand.manipulation import plan_motion
+
+    scene = builtin_scene("liu-push")
+    plan = plan_motion(scene, load_grasp(grasp_path("liu-push")))
+    P = scene.object_pose.numpy()
+    still = np.array([t for t in range(1, scene.T - 1)
+                      if np.array_equal(P[t - 1], P[t]) and np.array_equal(P[t], P[t + 1])])
+    ext = scene.external_wrench.numpy()[still, :3]
+    assert np.abs(ext[:, 1]).max() == 3.0
+    total = (plan.forces * plan.mask[..., None]).sum(1)[still]
+    weight = scene.object.mass * scene.gravity.double().numpy()
+    err = np.abs(total + weight + ext).max()
+    print(f"liu-push: {len(still)} still frames, largest force-balance error {err:.2e} N")
+    assert err <= 1e-6 * np.linalg.norm(weight)
+
+
+def test_approach_scene_ends_on_the_hold_pose():
+    """The grasp source: the object still at frame-0 pose, the wrist 6 cm back along the palm normal (+z of the hand
+    frame) at its first frame and on the scene's frame-0 hand pose from frame 10 on; no external wrench."""
+    from torchhand.errors import InputValueError
+    from torchhand.scenes.liu import approach_scene
+
+    scene = builtin_scene("liu-push")
+    a = approach_scene(scene)
+    W, W0 = a.hands[0].wrist_pose.numpy(), scene.hands[0].wrist_pose[0].numpy()
+    assert a.T == 14 and a.external_wrench is None
+    assert np.array_equal(a.object_pose.numpy(), np.repeat(scene.object_pose[:1].numpy(), 14, axis=0))
+    assert np.allclose(W[10:], W0, atol=1e-12)
+    assert np.allclose(W[0, :3, 3] - W0[:3, 3], 0.06 * W0[:3, 2], atol=1e-12)
+    with pytest.raises(InputValueError, match="frames"):
+        approach_scene(scene, 10)
