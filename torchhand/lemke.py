@@ -2,7 +2,8 @@
 
 Finds x with x >= 0, w = M x + q >= 0, x^T w = 0 (LCP(M, q)) by pivoting on the tableau of
 ``w - M x - d x0 = q`` (Lemke 1965; Cottle, Pang & Stone 2009, Algorithm 4.4.5), with the covering vector d = 1
-(and, after a ray termination, up to ``restarts`` seeded random covering vectors d = 1 + U(0, 1)^n).
+(and, after a ray termination or a terminal basis that does not solve the problem, up to ``restarts`` seeded random
+covering vectors d = 1 + U(0, 1)^n: each covering vector follows another complementary path).
 Degeneracy is handled by the lexicographic minimum-ratio rule on the rows of [q_bar, B^-1], which rules out
 cycling; the artificial variable x0 leaves as soon as it ties for the minimum ratio. At the end the final
 complementary basis is re-solved directly (one dense solve) to remove the round-off that pivoting accumulates.
@@ -86,8 +87,10 @@ def lemke(M, q, max_pivots: int | None = None, tol: float = 1e-9, restarts: int 
         q: LCP vector, (n,)
         max_pivots: pivot limit over all runs; default ``max(1000, 50 n)``
         tol: CONVERGED needs ||min(x, w)||_inf <= tol * max(1, ||M||_inf, ||q||_inf)
-        restarts: after a ray termination, retry with up to this many other covering vectors d = 1 + u,
-            u ~ U(0, 1)^n (a different complementary path; matters only when M is not copositive-plus)
+        restarts: after any run that does not converge (a ray termination, or a terminal complementary basis whose
+            re-solved x misses ``tol``: round-off on a badly conditioned path), retry with up to this many other
+            covering vectors d = 1 + u, u ~ U(0, 1)^n (a different complementary path) while pivots remain; the
+            last run's status is reported
         seed: seed of the NumPy generator that draws those covering vectors (no global RNG is touched)
 
     Returns:
@@ -113,7 +116,7 @@ def lemke(M, q, max_pivots: int | None = None, tol: float = 1e-9, restarts: int 
     for attempt in range(restarts + 1):
         out = _lemke_run(M, q, d, max_pivots - used, tol)
         used += out.pivots
-        if out.status != SolverStatus.UNBOUNDED or used >= max_pivots:
+        if out.status == SolverStatus.CONVERGED or used >= max_pivots:
             break
         d = 1.0 + rng.uniform(0.0, 1.0, n)
     return out._replace(pivots=used)

@@ -63,7 +63,8 @@ def test_from_result_tau_matches_mujoco_and_theta_r(tmp_path_factory, tmp_path):
 
     res, force = _forced_result(tmp_path_factory, tmp_path)
     out = tmp_path / "inf"
-    assert cli(["capture", "from-result", str(res), "--out", str(out), "--threads", "1"]) == 0
+    assert cli(["capture", "from-result", str(res), "--out", str(out), "--threads", "1",
+                "--friction-margin", "1"]) == 0                      # the solution's forces as they are
     cap = load_capture(out / "capture.npz")
     z = np.load(out / "interaction.npz")
     assert cap.source == "inferred" and str(z["source"]) == "inferred"
@@ -151,6 +152,90 @@ def test_from_result_resynthesis_on_a_smaller_box_passes_the_check(tmp_path_fact
     assert f["force_error"].value < 0.01 and f["object_penetration_m"].value <= 0.002
 
 
+def test_friction_margin_keeps_the_wrench_inside_smaller_cones(tmp_path_factory, tmp_path):
+    """--friction-margin 0.8 on a solution whose forces lie ON their friction cones (the forces of random wrenches
+    solved by Clarabel at the full mu, minimum total normal force, the synthesis' own problem): per frame the
+    re-solved forces give the same net force and torque about the centre of mass (recomputed here), lie inside
+    cones of 0.8 mu about the solution's normals, and their total normal force is Clarabel's optimum of the same
+    problem at 0.8 mu (the reference, within 1e-4 relative)."""
+    clarabel = pytest.importorskip("clarabel")
+    import dataclasses
+
+    from scipy import sparse
+
+    from torchhand.interaction.inferred import with_friction_margin
+    from torchhand.result import load_result
+
+    res = load_result(small_result(tmp_path_factory))
+    sol = res.solution(0)
+    mu, com = 0.8, np.asarray(res.scene.object.com, dtype=np.float64)
+    T, K = sol.contact_mask.shape
+    c = np.einsum("tij,j->ti", sol.object_pose[:, :3, :3], com) + sol.object_pose[:, :3, 3]
+
+    def socp(t, mu_t, wrench):
+        """min sum f.n  s.t.  sum f = F, sum r x f = tau, ||f_t|| <= mu_t f.n  (Clarabel): forces (k, 3), optimum."""
+        idx = np.nonzero(sol.contact_mask[t])[0]
+        k = len(idx)
+        n = sol.contact_normal[t, idx]
+        r = sol.contact_point[t, idx] - c[t]
+        A = np.zeros((6, 3 * k))
+        for j in range(k):
+            A[:3, 3 * j:3 * j + 3] = np.eye(3)
+            x, y, z = r[j]
+            A[3:, 3 * j:3 * j + 3] = [[0, -z, y], [z, 0, -x], [-y, x, 0]]
+        rows = [sparse.csc_matrix(A)]
+        cones = [clarabel.ZeroConeT(6)]
+        for j in range(k):
+            e1 = np.cross(n[j], [1.0, 0, 0] if abs(n[j, 0]) < 0.9 else [0, 1.0, 0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(n[j], e1)
+            G = np.zeros((3, 3 * k))
+            G[0, 3 * j:3 * j + 3] = -mu_t * n[j]
+            G[1, 3 * j:3 * j + 3] = -e1
+            G[2, 3 * j:3 * j + 3] = -e2
+            rows.append(sparse.csc_matrix(G))
+            cones.append(clarabel.SecondOrderConeT(3))
+        settings = clarabel.DefaultSettings()
+        settings.verbose = False
+        settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-10
+        q = np.concatenate([n[j] for j in range(k)])
+        s = clarabel.DefaultSolver(sparse.csc_matrix((3 * k, 3 * k)), q, sparse.vstack(rows).tocsc(),
+                                   np.concatenate([wrench, np.zeros(3 * k)]), cones, settings).solve()
+        return idx, str(s.status), np.asarray(s.x).reshape(k, 3), float(s.obj_val)
+
+    # forces on the cone's edge: each frame with 3+ contacts gets a random wrench solved at the full mu
+    rng = np.random.default_rng(3)
+    force = np.zeros((T, K, 3))
+    frames = [t for t in range(T) if sol.contact_mask[t].sum() >= 3]
+    for t in frames:
+        w = np.concatenate([rng.normal(0, 0.5, 3) + [0, 0, 2.0], rng.normal(0, 0.01, 3)])
+        idx, status, f, _ = socp(t, mu, w)
+        if status == "Solved":
+            force[t, idx] = f
+    solved = [t for t in frames if np.abs(force[t]).sum() > 0]
+    assert len(solved) >= 3
+    sol = dataclasses.replace(sol, contact_force=force, contact_mask=sol.contact_mask & (np.abs(force).sum(-1) > 0))
+    new, rep = with_friction_margin(sol, com, mu, 0.8)
+    assert rep.use_before == pytest.approx(1.0, abs=1e-3) and rep.resolved + rep.kept == len(solved)
+    compared = 0
+    for t in solved:
+        f0, f1 = force[t], new.contact_force[t]
+        r = sol.contact_point[t] - c[t]
+        scale = np.abs(f0).sum()
+        np.testing.assert_allclose(f1.sum(0), f0.sum(0), atol=1e-5 * scale)
+        np.testing.assert_allclose(np.cross(r, f1).sum(0), np.cross(r, f0).sum(0), atol=1e-6 * scale)
+        idx, status, _, opt = socp(t, 0.8 * mu, np.concatenate([f0.sum(0), np.cross(r, f0).sum(0)]))
+        if status != "Solved":
+            continue                        # needs more than 0.8 mu: a larger margin or the solution's forces
+        n = sol.contact_normal[t, idx]
+        fn = (f1[idx] * n).sum(-1)
+        ft = np.linalg.norm(f1[idx] - fn[:, None] * n, axis=-1)
+        assert (ft <= 0.8 * mu * fn + 1e-5 * scale).all()
+        assert fn.sum() == pytest.approx(opt, rel=1e-4)
+        compared += 1
+    assert compared >= 3
+
+
 def test_from_result_bad_inputs(tmp_path_factory, tmp_path, capsys):
     res = small_result(tmp_path_factory)
     out = tmp_path / "inf"
@@ -166,6 +251,8 @@ def test_from_result_bad_inputs(tmp_path_factory, tmp_path, capsys):
     assert cli(["capture", "from-result", str(res), "--out", str(out)]) == 2
     assert "--overwrite" in capsys.readouterr().err
     assert (out / "interaction.npz").read_bytes() == before
+    assert cli(["capture", "from-result", str(res), "--out", str(out), "--overwrite", "--friction-margin", "0"]) == 2
+    assert "--friction-margin" in capsys.readouterr().err
     assert cli(["capture", "from-result", str(res), "--out", str(out), "--overwrite", "--compliance",
                 "table1-scratching", "--threads", "1"]) == 0
     from torchhand.interaction.compliance import TABLE1

@@ -144,6 +144,24 @@ def test_lemke_ray_termination_and_limits():
     assert lemke(np.array([[np.nan]]), np.array([-1.0])).status == SolverStatus.INVALID_INPUT
 
 
+def test_lemke_restarts_after_a_terminal_basis_that_is_not_a_solution():
+    """A Kry & Pai step LCP (130 unknowns: 13 contacts x 9 pyramid directions + 13 slip multipliers, a 0.75 kg box
+    in the resynthesis demo) on which the first covering vector d = 1 ends on a complementary basis whose solution
+    misses the tolerance (round-off along the path): Lemke restarts with another covering vector and solves it.
+    Reference: the LCP's definition (x >= 0, M x + q >= 0, x^T (M x + q) = 0) evaluated here; the problem is too
+    large to enumerate and its M is singular on the support, so no basis re-solve is possible."""
+    data = np.load(Path(__file__).resolve().parents[1] / "data" / "lemke_restart_lcp.npz")
+    M, q, tol = data["M"], data["q"], 1e-7
+    first = lemke(M, q, tol=tol, restarts=0)
+    assert first.status == SolverStatus.MAX_ITERATIONS and first.pivots < max(1000, 50 * len(q))
+    assert first.residual > 100 * tol                     # a terminal basis that is not a solution
+    out = lemke(M, q, tol=tol)
+    assert out.status == SolverStatus.CONVERGED and out.pivots > first.pivots
+    check_solution(out.x, M, q, 1e-9)
+    w = M @ out.x + q                                     # recomputed here, not the solver's w
+    assert abs(float(out.x @ w)) <= 1e-12 and w.min() >= -1e-9
+
+
 def test_lemke_bad_input():
     with pytest.raises(ShapeError, match="M must have shape"):
         lemke(np.eye(3), np.ones(2))

@@ -276,6 +276,36 @@ def test_lever_closed_form(solver):
           f"{f_closed.tolist()} N")
 
 
+def test_joint_limits_clamp_and_report():
+    """theta^{k+1} is clamped into hand.xml's joint range (read here by MuJoCo, the reference) and the clamp is
+    reported: a lever limited to [-0.3, -0.02] rad whose reference (0.2 rad) presses into a plane it touches at
+    theta = 0 stops at its limit, 0.02 rad above the plane's contact, carries no force and reports a clamp of
+    0.22 rad; without clamping (the paper's step) it presses the plane as in the closed form."""
+    mujoco = pytest.importorskip("mujoco")
+    length, c = 0.05, 0.8
+    xml = lever_xml(length).replace('axis="0 1 0"/>', 'axis="0 1 0" limited="true" range="-0.3 -0.02"/>')
+    hi = float(mujoco.MjModel.from_xml_string(xml).jnt_range[0, 1])
+    hand = hand_from_mjcf(xml)
+    radius = float(hand.capsule_radius[1])
+    env = TablePlane(offset=-radius, mu=0.0)
+    C = torch.tensor([[0.0] * 6 + [c]], dtype=F64)
+    reference = lambda k: torch.full((1, 1), -0.05 + 0.25 * min(1.0, k / 10), dtype=F64)  # noqa: E731
+    for clamp in (True, False):
+        settings = StepSettings(solver="lemke", geometry="capsules", clamp_joints=clamp)
+        state = initial_state(hand, torch.full((1, 1), -0.05, dtype=F64), _pose(), env=env, settings=settings)
+        state, reports = run(state, hand, C, reference, 14, env=env, settings=settings)
+        assert all(bool((rep.status == CONVERGED).all()) for rep in reports)
+        if clamp:
+            assert float(state.q[0, 0]) == pytest.approx(hi, abs=1e-15)
+            assert float(state.forces.abs().max()) == 0.0
+            assert float(reports[-1].joint_clamp[0]) == pytest.approx(0.2 - hi, abs=1e-12)
+            assert float(reports[0].joint_clamp[0]) == 0.0               # -0.025 rad: inside the range
+        else:
+            assert float(state.q[0, 0]) == pytest.approx(0.0, abs=1e-6)  # on the plane, beyond the limit
+            assert float(state.forces[0, 1, 2]) == pytest.approx(length * 0.2 / (c * length ** 2), rel=1e-4)
+            assert all(float(rep.joint_clamp.abs().max()) == 0.0 for rep in reports)
+
+
 def _check_invariants(rep, mu, tol_len=1e-10, tol_f=1e-7):
     m = rep.mask
     b0 = rep.beta[..., 0]

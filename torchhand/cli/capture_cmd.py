@@ -23,12 +23,13 @@ docs/interaction_capture.md.
     (the step is named); 2 bad input.
 
 ``torchhand capture from-result RESULT --out DIR``
-    An inferred interaction from a ``torchhand synthesize`` result: the solution's contact forces (negated: on the
-    hand) at the contact points in their link frames as DIR/capture.npz (source "inferred"), and DIR/interaction.npz
-    with C(t) from a Kry & Pai Table 1 preset and theta_r = theta - C tau, tau = sum J^T f over the 6 + D
-    coordinates. Also DIR/hand.xml (the capture's hand), DIR/scene/ (the result's scene over the frames used) and
-    DIR/summary.json. Exit 0 written; 2 bad input (a missing result, a bad --solution or --frames, an existing
-    output without --overwrite).
+    An inferred interaction from a ``torchhand synthesize`` result: the solution's contact forces (negated: on the hand)
+    at the contact points in their link frames as DIR/capture.npz (source "inferred"), and DIR/interaction.npz with C(t)
+    from a Kry & Pai Table 1 preset and theta_r = theta - C tau, tau = sum J^T f over the 6 + D coordinates.
+    --friction-margin F (0.8) first re-solves each frame's forces for the same object wrench inside cones of F mu (the
+    synthesis' forces sit on the cone's edge; 1 keeps them). Also DIR/hand.xml (the capture's hand), DIR/scene/ (the
+    result's scene over the frames used) and DIR/summary.json. Exit 0 written; 2 bad input (a missing result, a bad
+    --solution or --frames, an existing output without --overwrite).
 """
 
 from __future__ import annotations
@@ -118,6 +119,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--settle-steps", type=int, default=0, metavar="N",
                    help="steps at the first reference before frame 0, object under gravity on the table (0)")
     r.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="rollout dtype (float64)")
+    r.add_argument("--object-contacts", choices=["mesh", "sdf"], default="mesh",
+                   help="hand-object contacts: each link's capsule against the exact mesh (mesh, the checker's "
+                        "geometry) or surface samples in a signed distance grid (sdf; --sdf-voxel)")
+    r.add_argument("--sdf-voxel", type=float, default=0.001, metavar="M",
+                   help="voxel of the grid with --object-contacts sdf, metres (0.001)")
     add_threads_argument(r)
     r.set_defaults(func=run_resynthesize)
 
@@ -130,6 +136,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "object)")
     f.add_argument("--compliance", default="table1-exploring", choices=["table1-exploring", "table1-scratching"],
                    help="compliance of every coordinate (Kry & Pai Table 1, extended; default table1-exploring)")
+    f.add_argument("--friction-margin", type=float, default=0.8, metavar="F",
+                   help="re-solve each frame's hand forces for the same object wrench inside friction cones of "
+                        "F mu (0 < F <= 1; 0.8): a grip with a safety margin instead of the synthesis' forces on the "
+                        "cone's edge; 1 replays the solution's forces as they are")
     f.add_argument("--out", required=True, metavar="DIR",
                    help="output directory (new or empty; an earlier output with --overwrite)")
     f.add_argument("--overwrite", action="store_true", help="replace an earlier output in --out")
@@ -206,7 +216,8 @@ def run_resynthesize(args) -> int:
     grip = GripSettings(mode=args.grip, ratio=args.slip_ratio, min_force=args.min_force, factor=args.tighten,
                         floor=args.grip_floor, delay=args.grip_delay)
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
-                               settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype))
+                               settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
+                               object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel)
     variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale, "--compliance-scale"),
                                _floats(args.friction, "--friction"))
     writer = prepare_result_dir(args.out, overwrite=args.overwrite)
@@ -242,7 +253,8 @@ def run_from_result(args) -> int:
     created = not Path(args.out).exists()
     out = prepare_inferred_dir(Path(args.out), overwrite=args.overwrite)
     try:
-        inf = infer_interaction(args.result, solution=args.solution, frames=args.frames, compliance=args.compliance)
+        inf = infer_interaction(args.result, solution=args.solution, frames=args.frames, compliance=args.compliance,
+                                friction_margin=args.friction_margin)
     except BaseException:
         if created:
             shutil.rmtree(out, ignore_errors=True)   # the directory this run made, still empty
@@ -255,6 +267,11 @@ def run_from_result(args) -> int:
           f"(inferred), compliance {inf.compliance}; largest |theta - theta_r|: root "
           f"{np.abs(inf.theta - inf.theta_r)[:, :3].max():.3g} rad, joints "
           f"{np.abs(inf.theta - inf.theta_r)[:, 6:].max():.3g} rad")
+    m = inf.margin
+    if m is not None and m.margin < 1:
+        print(f"friction margin {m.margin:g}: {m.resolved}/{m.frames} loaded frames re-solved for the same object "
+              f"wrench ({m.kept} kept the solution's forces); largest |f_t| / (mu f_n) {m.use_before:.2f} before, "
+              f"{m.use_resolved:.2f} in the re-solved frames, {m.use_after:.2f} in all")
     print(f"wrote {out / 'capture.npz'}, {out / 'interaction.npz'}, {out / 'scene'}/")
     return 0
 

@@ -7,11 +7,35 @@ when that point is closer than ``margin`` (5 mm by default, so that a link canno
 step unnoticed). Because a slot keeps its identity from step to step, the force f_i^k carries over to the new
 contact point of the same slot (the paper's contact update).
 
-- object: the deepest of the link's surface samples (``HandModel.sample_points``) in the object's signed distance
-  grid; the normal is the grid's gradient there.
+- object, ``geometry="samples"`` or no exact mesh: the deepest of the link's surface samples
+  (``HandModel.sample_points``) in the object's signed distance grid; the normal is the grid's gradient there
+  (trilinear, so blended over a voxel near an edge or a corner, and the point is only as deep as the nearest sample).
+- object, ``geometry="capsules"`` with the exact mesh (``object_mesh``, a
+  :class:`~torchhand.check.geometry.ObjectMesh`): the link's capsule against the mesh, the same geometry as
+  ``torchhand check``. Points on the capsule axis at most :data:`AXIS_SPACING` (1 mm) apart whose hull bound allows
+  contact within ``margin`` get trimesh's exact closest surface point c and signed distance; the axis point p with
+  the smallest ``separation = distance(p) - radius`` is the link's contact. Its normal d0 is the closest-point
+  direction (p - c) / |p - c| (reversed when p is inside): the exact gradient of the distance to the mesh, which is
+  the face normal on a face and turns continuously around a convex edge or corner through the normals of the
+  faces that meet there (the face normal of c's triangle when p lies on the surface). d0 must lie in the mesh's
+  normal cone at c, the cone of the normals of the faces within 0.5 mm of c that ``torchhand check`` measures
+  friction against: at a convex edge or corner it does; at a vertex where a scanned mesh is not convex it can lie
+  just outside (0.4 degrees measured on the bunny, enough for a force on its pyramid's edge to leave the cone), and
+  is projected onto that cone. The slot's point is the capsule surface point p - radius d0 (on the link's capsule,
+  which is what the Jacobian moves) and the written object contact point, ``points - separation d0``, is c itself
+  (within distance(p) times the projection's angle where d0 was projected).
 - plane: exact. ``geometry="samples"`` takes the deepest surface sample; ``geometry="capsules"`` takes the exact
   lowest point of the link's fitted capsule (``capsule_a``, ``capsule_b``, ``capsule_radius``; the middle of the
   segment when it lies parallel to the plane), which is the true contact point for capsule-shaped links.
+
+Finger-finger slots (an extension: the paper's step has none, and its fingers pass through each other; design note
+§3): with ``self_pairs`` (Q, 2) link pairs (:func:`self_pairs`: the capsule pairs of different fingers that
+``torchhand check`` measures), Q more slots follow the object and plane slots, ``body = BODY_SELF``, ``link`` the
+pair's first link a. Both bodies are compliant: the closest points p_a, p_b of the two capsule axes give
+d0 = (p_a - p_b) / |p_a - p_b| (the direction of the force link b exerts on link a), separation
+|p_a - p_b| - r_a - r_b, the slot point p_a - r_a d0 on a's capsule, and the Jacobian row J_a(p_a - r_a d0) -
+J_b(p_b + r_b d0): the relative motion of the two surface points, so that G = J C J^T holds the compliance of both
+fingers (and nothing of the root, which moves both). They enter the LCP like hand-plane rows (U_phi = u_phi = 0).
 
 Normals are stored as the paper's d_i0: the unit outward normal of the object or plane, the direction of the force
 the counterpart exerts on the hand (torchhand's contact normal, into the object, is -d0).
@@ -35,11 +59,13 @@ from ..collision import hand_object_penetration, rigid_inverse
 from ..errors import InputValueError
 from ..hand.dynamics import point_jacobian
 
-__all__ = ["TablePlane", "Contacts", "find_contacts", "support_points", "BODY_OBJECT", "BODY_ENV", "BODY_OBJECT_ENV"]
+__all__ = ["TablePlane", "Contacts", "find_contacts", "support_points", "self_pairs", "BODY_OBJECT", "BODY_ENV",
+           "BODY_OBJECT_ENV", "BODY_SELF"]
 
 BODY_OBJECT = 0
 BODY_ENV = 1
 BODY_OBJECT_ENV = 2
+BODY_SELF = 3
 
 
 @dataclass(frozen=True)
@@ -121,9 +147,138 @@ def _plane_capsules(hand, link_poses: torch.Tensor, n: torch.Tensor):
     return local, (rad > 0).expand(a.shape[:2])
 
 
+AXIS_SPACING = 1e-3
+"""Largest distance between consecutive capsule-axis points in the exact object test, metres (the checker's)."""
+
+
+def _into_normal_cone(mesh, closest, tri, n):
+    """Outward normals n (K, 3) moved into the normal cone of the mesh at their closest points: the cone of the
+    normals of every face within ``torchhand.check.contacts.EDGE_TOL`` (the cone ``torchhand check`` measures
+    friction against). On a face, and at a convex edge or corner, the closest-point direction already lies in it;
+    at a vertex where the surface is not convex (a saddle of a scanned mesh) it can lie just outside, and is
+    replaced by its projection onto the cone (non-negative least squares over the generators, renormalised)."""
+    import numpy as np
+    from scipy.optimize import nnls
+
+    from ..check.contacts import EDGE_TOL
+
+    out = n.copy()
+    for i, gens in enumerate(mesh.normal_cone(closest, tri, EDGE_TOL)):
+        if len(gens) < 2:
+            continue
+        G = -gens                                   # outward generators, (m, 3)
+        lam, _ = nnls(G.T, n[i])
+        x = G.T @ lam
+        if np.linalg.norm(x) > 1e-12 and np.linalg.norm(x / np.linalg.norm(x) - n[i]) > 1e-12:
+            out[i] = x / np.linalg.norm(x)
+    return out
+
+
+def _object_capsules(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, mesh, margin: float,
+                     spacing: float = AXIS_SPACING):
+    """Each link's capsule against the exact mesh (module docstring): local (B, L, 3) link frame, hand point
+    (B, L, 3) world, d0 (B, L, 3) world, separation (B, L) (inf where no axis point can come within ``margin``),
+    has (B, L) bool."""
+    import numpy as np
+
+    from ..check.geometry import axis_points
+
+    like = link_poses
+    B, L = link_poses.shape[:2]
+    lp = link_poses.detach().cpu().double().numpy()
+    E = object_pose.detach().cpu().double().numpy()
+    ca = hand.capsule_a.detach().cpu().double().numpy()
+    cb = hand.capsule_b.detach().cpu().double().numpy()
+    rad = hand.capsule_radius.detach().cpu().double().numpy()
+    links = np.nonzero(rad > 0)[0]
+    sep = np.full((B, L), np.inf)
+    hand_pt = np.zeros((B, L, 3))
+    d0 = np.zeros((B, L, 3))
+    d0[..., 2] = 1.0
+    if len(links):
+        frac, owner = axis_points(ca[links], cb[links], spacing)
+        owner = links[owner]
+        R, t = lp[:, :, :3, :3], lp[:, :, :3, 3]
+        aw = np.einsum("blij,lj->bli", R, ca) + t
+        bw = np.einsum("blij,lj->bli", R, cb) + t
+        pw = aw[:, owner] + frac[None, :, None] * (bw[:, owner] - aw[:, owner])            # (B, P, 3) world
+        Ri, ti = E[:, :3, :3].transpose(0, 2, 1), -np.einsum("bji,bj->bi", E[:, :3, :3], E[:, :3, 3])
+        po = np.einsum("bij,bpj->bpi", Ri, pw) + ti[:, None]                                 # object frame
+        r = rad[owner]
+        bound = mesh.hull_distance_bound(po.reshape(-1, 3)).reshape(B, -1)
+        bi, pi = np.nonzero(bound < r[None, :] + margin)
+        if len(bi):
+            sd = mesh.signed_distance(po[bi, pi])                                           # positive inside
+            s_all = -sd - r[pi]
+            flat = np.full(B * L, np.inf)
+            key = bi * L + owner[pi]
+            np.minimum.at(flat, key, s_all)
+            best = np.full(B * L, -1, dtype=np.int64)
+            hit = s_all <= flat[key]
+            best[key[hit]] = np.nonzero(hit)[0]
+            sel = np.nonzero(best >= 0)[0]
+            j = best[sel]
+            p = po[bi[j], pi[j]]
+            c, dist, tri = mesh.closest(p)
+            inside = sd[j] > 0
+            face_n = np.asarray(mesh.mesh.face_normals, dtype=np.float64)[tri]
+            v = np.where(inside[:, None], c - p, p - c)
+            nv = np.linalg.norm(v, axis=-1, keepdims=True)
+            n_obj = np.where(nv > 1e-9, v / np.maximum(nv, 1e-300), face_n)
+            n_obj = _into_normal_cone(mesh, c, tri, n_obj)
+            b_sel, l_sel = sel // L, sel % L
+            n_w = np.einsum("bij,bj->bi", E[b_sel, :3, :3], n_obj)
+            p_w = pw[b_sel, pi[j]]
+            hand_pt[b_sel, l_sel] = p_w - rad[l_sel, None] * n_w
+            d0[b_sel, l_sel] = n_w
+            sep[b_sel, l_sel] = s_all[j]
+    has = np.isfinite(sep)
+    inv = np.linalg.inv(lp)
+    local = np.einsum("blij,blj->bli", inv[..., :3, :3], hand_pt) + inv[..., :3, 3]
+    tt = lambda x: torch.from_numpy(x).to(like)  # noqa: E731
+    return tt(local), tt(hand_pt), tt(d0), tt(sep), torch.from_numpy(has).to(like.device)
+
+
+def self_pairs(hand) -> torch.Tensor:
+    """The capsule pairs of different fingers that ``torchhand check`` measures for finger-finger penetration
+    (:func:`torchhand.check.penetration.finger_pairs`: links with a capsule, a four-link finger's first link left
+    out), (Q, 2) long."""
+    from ..check.penetration import finger_pairs
+
+    cpu = hand if hand.joint_limits.device.type == "cpu" else hand.to("cpu")
+    return torch.from_numpy(finger_pairs(cpu)).to(torch.long)
+
+
+def _self_slots(hand, q, root, link_poses, pairs: torch.Tensor):
+    """Finger-finger slots (module docstring): local_a (B, Q, 3), point (B, Q, 3), d0 (B, Q, 3), separation
+    (B, Q), J (B, 3Q, 6 + D) unmasked."""
+    from torchhand.kernels.penetration import capsule_interpenetration
+
+    B, Q = q.shape[0], pairs.shape[0]
+    rad = hand.capsule_radius.to(link_poses)
+    res = capsule_interpenetration(link_poses, hand.capsule_a.to(link_poses), hand.capsule_b.to(link_poses), rad,
+                                   pairs.to(link_poses.device))
+    ia, ib = pairs[:, 0].to(q.device), pairs[:, 1].to(q.device)
+    v = res.point_i - res.point_j
+    dist = v.norm(dim=-1, keepdim=True)
+    # coincident axes (never in practice): push along +z rather than divide by zero
+    z = torch.zeros_like(v)
+    z[..., 2] = 1.0
+    n = torch.where(dist > 1e-12, v / dist.clamp_min(1e-300), z)
+    pa = res.point_i - rad[ia][None, :, None] * n
+    pb = res.point_j + rad[ib][None, :, None] * n
+    sep = dist[..., 0] - rad[ia] - rad[ib]
+    inv = rigid_inverse(link_poses)
+    la = _transform(inv[:, ia], pa)
+    lb = _transform(inv[:, ib], pb)
+    J = point_jacobian(hand, q, torch.cat([ia, ib]), torch.cat([la, lb], 1), root).reshape(B, 2, Q, 3, -1)
+    return la, pa, n, sep, (J[:, 0] - J[:, 1]).reshape(B, 3 * Q, -1)
+
+
 def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object_pose: torch.Tensor | None = None,
                   plane: TablePlane | None = None, margin: float = 0.005, geometry: str = "samples",
-                  object_points: torch.Tensor | None = None) -> Contacts:
+                  object_points: torch.Tensor | None = None, object_mesh=None,
+                  self_pairs: torch.Tensor | None = None) -> Contacts:
     """Contact slots of the hand against an object and/or a fixed plane (module docstring).
 
     hand: HandModel; q: finger joints, (B, D), radians; root: root pose, (B, 4, 4)
@@ -132,17 +287,28 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
         (how plane contacts are found)
     object_points: the object's support points, (P, 3), object frame, metres (:func:`support_points`), or None;
         with an object and a plane they add P object-plane slots (module docstring)
-    returns: :class:`Contacts` with N = L per counterpart given (+ P object-plane slots)
+    object_mesh: the object's exact mesh, :class:`~torchhand.check.geometry.ObjectMesh` (object frame), or None;
+        with ``geometry="capsules"`` the object slots come from it (module docstring), and ``sdf`` may be None
+    self_pairs: finger-finger capsule pairs, (Q, 2) long (:func:`self_pairs`), or None (no finger-finger slots)
+    returns: :class:`Contacts` with N = L per counterpart given (+ P object-plane slots, + Q finger-finger slots)
     """
-    if sdf is None and plane is None:
-        raise InputValueError("find_contacts: give an object (sdf) or a plane, got neither")
+    exact = object_mesh is not None and geometry == "capsules"
+    has_obj = sdf is not None or exact
+    if object_mesh is not None and sdf is None and not exact:
+        raise InputValueError("find_contacts: an object given by its exact mesh alone needs geometry='capsules' "
+                              "(surface samples are looked up in a signed distance grid)")
+    if not has_obj and plane is None:
+        raise InputValueError("find_contacts: give an object (sdf or object_mesh) or a plane, got neither")
     if geometry not in ("samples", "capsules"):
         raise InputValueError(f"geometry: expected 'samples' or 'capsules', got {geometry!r}")
     B, L = q.shape[0], hand.num_links
     link_poses = hand.forward_kinematics(q, root)
     arangeL = torch.arange(L, device=q.device)
     parts = []
-    if sdf is not None:
+    if exact:
+        local, pts, nrm, sep, has = _object_capsules(hand, link_poses, object_pose, object_mesh, margin)
+        parts.append((BODY_OBJECT, local, pts, nrm, sep, has))
+    elif sdf is not None:
         pen = hand_object_penetration(hand, link_poses, sdf, object_pose)
         has = pen.deepest_index >= 0
         local = hand.sample_points.to(q)[pen.deepest_index.clamp_min(0)]
@@ -167,7 +333,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     N = link.shape[0]
     J = point_jacobian(hand, q, link, local, root).reshape(B, 3 * N, -1)
     J = J * mask.repeat_interleave(3, dim=1)[..., None].to(J.dtype)
-    if object_points is not None and sdf is not None and plane is not None:
+    if object_points is not None and has_obj and plane is not None:
         if not (isinstance(object_points, torch.Tensor) and object_points.dim() == 2 and object_points.shape[1] == 3):
             raise InputValueError(f"object_points: expected a (P, 3) tensor, got "
                                   f"{tuple(getattr(object_points, 'shape', ())) or type(object_points).__name__}")
@@ -185,6 +351,18 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
         sep = torch.cat([sep, s_env], 1)
         mask = torch.cat([mask, m_env], 1)
         J = torch.cat([J, J.new_zeros(B, 3 * P, J.shape[2])], 1)
+    if self_pairs is not None and self_pairs.shape[0] > 0:
+        Q = self_pairs.shape[0]
+        la, pa, n, s_self, J_self = _self_slots(hand, q, root, link_poses, self_pairs)
+        m_self = s_self < margin
+        body = torch.cat([body, torch.full((Q,), BODY_SELF, dtype=torch.long, device=q.device)])
+        link = torch.cat([link, self_pairs[:, 0].to(q.device)])
+        local = torch.cat([local, la], 1)
+        points = torch.cat([points, pa], 1)
+        d0 = torch.cat([d0, n], 1)
+        sep = torch.cat([sep, s_self], 1)
+        mask = torch.cat([mask, m_self], 1)
+        J = torch.cat([J, J_self * m_self.repeat_interleave(3, dim=1)[..., None].to(J_self.dtype)], 1)
     sep = torch.where(mask, sep, torch.zeros_like(sep))
     return Contacts(link, body, local, points, d0, sep, mask, J)
 

@@ -19,6 +19,19 @@ one frame (a fingertip's contact and its area-contact proxy) gets two sensors. A
 where it has no contact, and its point is then the origin of its link frame. The contact point, which lies on the
 object surface, is expressed in the link frame at that frame's pose.
 
+Friction margin (a deviation from a plain replay, on by default): a synthesis solves the smallest normal forces that
+produce the object's wrench (Ye & Liu 2012, Eq. 4), so its forces lie on the friction cone's boundary (|f_t| = mu f_n).
+Replayed as a capture, every resynthesised contact then starts on the verge of sliding and the object lags and slips in
+the hand. Kry & Pai treat a tangential to normal force ratio above a threshold below mu as imminent slip (§8.1, "on the
+verge of slipping", the grip response the paper models after Johansson 1998); it does not say how far below mu its
+captured forces were. With ``friction_margin`` F < 1, each frame's hand forces are re-solved by the synthesis' own force
+solve (:func:`torchhand.kernels.friction_cone.solve_friction_cone`: minimum total normal force, exact second-order
+cones) for the SAME net wrench on the object (force and torque about its centre of mass, from the solution's forces) at
+the same contacts with the friction coefficient F mu; tau and theta_r then come from those forces. The object's motion
+is unchanged (the wrench is), the grip squeezes harder, and every force lies inside the true cone with |f_t| <= F mu
+f_n. A frame whose wrench cannot be made within F mu (INFEASIBLE: the contacts' geometry needs more friction) tries F +
+(1 - F) j / 4, j = 1, 2, 3, and failing those keeps the solution's forces; ``summary.json`` counts them. F = 1 (or None)
+is the plain replay.
 Units: metres, seconds, radians, newtons; compliance rad/(N m), root linear m/N.
 """
 
@@ -27,6 +40,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +55,8 @@ from .compliance import PRESETS, default_compliance, generalized_names
 __all__ = [
     "OUTPUT_NAMES",
     "InferredInteraction",
+    "MarginReport",
+    "with_friction_margin",
     "capture_from_solution",
     "infer_interaction",
     "interaction_arrays",
@@ -70,6 +86,7 @@ class InferredInteraction:
     frames: (start, stop) of the solution's frames used; solution: solution index; result: the result directory
     compliance: the preset name; scene: the result's scene restricted to ``frames``; hand: HandModel (float64)
     hand_file: the result's MJCF of the hand (``hand.xml``) or None
+    margin: :class:`MarginReport` of the friction-margin re-solve, or None
     """
 
     capture: Capture
@@ -88,6 +105,7 @@ class InferredInteraction:
     scene: object
     hand: object
     hand_file: Path | None
+    margin: MarginReport | None = None
 
     @property
     def T(self) -> int:
@@ -110,7 +128,8 @@ class InferredInteraction:
                             for s, n in enumerate(self.capture.force_link)],
                 "max_total_force_N": float(fmag.sum(1).max()) if fmag.size else 0.0,
                 "max_abs_tau": {n: float(np.abs(self.tau[:, j]).max()) for j, n in enumerate(self.names)},
-                "compliance_rules": dict(zip(self.names, self.compliance_source))}
+                "compliance_rules": dict(zip(self.names, self.compliance_source)),
+                "friction_margin": None if self.margin is None else dataclasses.asdict(self.margin)}
 
 
 def parse_frames(text: str | None, T: int) -> tuple[int, int]:
@@ -190,6 +209,83 @@ def capture_from_solution(sol, hand, *, hand_spec: str = "hand.xml") -> Capture:
                    object_pose=sol.object_pose.copy(), source="inferred")
 
 
+@dataclass(frozen=True)
+class MarginReport:
+    """What the friction-margin re-solve did (module docstring).
+
+    margin: F (1.0: not applied); frames: frames with hand forces; resolved: frames whose forces were re-solved (within
+    F mu, or within F' mu for the smallest F' of F + (1 - F) j / 4 that works); kept: frames that kept the solution's
+    forces; use_before, use_after: the largest |f_t| / (mu f_n) of the loaded hand forces (|f| > 0.05 N) before and
+    after; wrench_residual: the largest ||sum f - F_req|| + ||sum p x f - tau_req|| of the re-solved frames, N + N m;
+    use_resolved: the largest |f_t| / (mu f_n) over the re-solved frames only
+    """
+
+    margin: float
+    frames: int
+    resolved: int
+    kept: int
+    use_before: float
+    use_after: float
+    wrench_residual: float
+    use_resolved: float
+
+
+def _friction_use(force, normal, mask, mu: float) -> float:
+    fn = (force * normal).sum(-1)
+    ft = np.linalg.norm(force - fn[..., None] * normal, axis=-1)
+    sel = mask & (np.linalg.norm(force, axis=-1) > 0.05) & (fn > 0)
+    return float((ft[sel] / (mu * fn[sel])).max()) if sel.any() and mu > 0 else 0.0
+
+
+def with_friction_margin(sol, com, mu: float, margin: float):
+    """The solution with each frame's hand forces re-solved inside cones of ``margin * mu`` for the same object
+    wrench (module docstring).
+
+    sol: :class:`torchhand.result.Solution` (one hand); com: the object's centre of mass, (3,), object frame,
+    metres; mu: the hand-object friction coefficient; margin: F in (0, 1]
+    returns: (solution, :class:`MarginReport`)
+    """
+    import dataclasses
+
+    from torchhand.kernels.friction_cone import solve_friction_cone
+    from torchhand.kernels.status import SolverStatus
+
+    if not 0 < margin <= 1:
+        raise InputValueError(f"--friction-margin: expected 0 < F <= 1, got {margin}")
+    mask = sol.contact_mask & (np.linalg.norm(sol.contact_force, axis=-1) > 0)
+    f0, n, p = sol.contact_force, sol.contact_normal, sol.contact_point
+    before = _friction_use(f0, n, mask, mu)
+    loaded = mask.any(1)
+    if margin >= 1 or mu <= 0 or not loaded.any():
+        return sol, MarginReport(1.0 if margin >= 1 else margin, int(loaded.sum()), 0, int(loaded.sum()), before,
+                                 before, 0.0, 0.0)
+    R, pos = sol.object_pose[:, :3, :3], sol.object_pose[:, :3, 3]
+    c = np.einsum("tij,j->ti", R, np.asarray(com, dtype=np.float64)) + pos
+    r = p - c[:, None]
+    fm = f0 * mask[..., None]
+    wrench = np.concatenate([fm.sum(1), np.cross(r, fm).sum(1)], -1)
+    force = f0.copy()
+    todo = np.nonzero(loaded)[0]
+    done = np.zeros(len(loaded), dtype=bool)
+    resolved, res = 0, 0.0
+    # F first; frames whose wrench needs more friction than F mu try F + (1 - F) j / 4, j = 1, 2, 3
+    for F in [margin + (1.0 - margin) * j / 4 for j in range(4)]:
+        if len(todo) == 0:
+            break
+        tt = lambda x: torch.from_numpy(np.ascontiguousarray(x[todo], dtype=np.float64))  # noqa: E731
+        out = solve_friction_cone(tt(r), tt(n), torch.full(mask[todo].shape, float(F * mu), dtype=torch.float64),
+                                  tt(wrench), mask=torch.from_numpy(mask[todo]), warm_start=tt(fm))
+        ok = (out.status == int(SolverStatus.CONVERGED)).numpy()
+        force[todo[ok]] = out.forces.numpy()[ok] * mask[todo[ok]][..., None]
+        done[todo[ok]] = True
+        resolved += int(ok.sum())
+        res = max(res, float(out.residual.numpy()[ok].max()) if ok.any() else 0.0)
+        todo = todo[~ok]
+    new = dataclasses.replace(sol, contact_force=force)
+    return new, MarginReport(float(margin), int(loaded.sum()), resolved, len(todo), before,
+                             _friction_use(force, n, mask, mu), res, _friction_use(force, n, mask & done[:, None], mu))
+
+
 def _restrict(sol, a: int, b: int):
     """The solution's frames a <= t < b (the per-frame arrays sliced)."""
     import dataclasses
@@ -203,12 +299,14 @@ def _restrict(sol, a: int, b: int):
 
 
 def infer_interaction(result_dir, *, solution: int = 0, frames: str | tuple | None = None,
-                      compliance: str = "table1-exploring") -> InferredInteraction:
+                      compliance: str = "table1-exploring", friction_margin: float | None = 0.8) -> InferredInteraction:
     """Capture and interaction trajectory of one solution of a result directory (module docstring).
 
     result_dir: a ``torchhand synthesize`` result (read with :func:`torchhand.result.load_result`)
     solution: solution index; frames: "A:B" or (A, B) of the solution's frames, None for all
     compliance: Table 1 preset, "table1-exploring" or "table1-scratching"
+    friction_margin: F in (0, 1]: re-solve the hand forces inside cones of F mu for the same object wrench (module
+        docstring; 0.8 by default); 1 or None: the solution's forces as they are
     returns: :class:`InferredInteraction`
     raises: MissingFileError / FileFormatError (no or a malformed result), InputValueError (bad solution index,
         bad frames, a two-hand result, no contact in the frames, unknown preset)
@@ -233,6 +331,9 @@ def infer_interaction(result_dir, *, solution: int = 0, frames: str | tuple | No
     else:
         a, b = parse_frames(frames, sol.T)
     sol = _restrict(sol, a, b)
+    mu = sol.friction if sol.friction is not None else res.scene.friction
+    sol, margin = with_friction_margin(sol, res.scene.object.com, float(mu),
+                                       1.0 if friction_margin is None else float(friction_margin))
     side = res.scene.hands[0].side
     hand = res.hand_models[side].to(device="cpu", dtype=torch.float64)
     hand_file = Path(res.path) / "hand.xml"
@@ -247,7 +348,7 @@ def infer_interaction(result_dir, *, solution: int = 0, frames: str | tuple | No
         compliance_source=tuple(rules), theta_r=theta - C * tau, root_origin=cap.root_pose[0].copy(),
         object_pose=sol.object_pose.copy(), frames=(a, b), solution=int(solution), result=Path(res.path),
         compliance=compliance, scene=res.scene.with_frames(a, b), hand=hand,
-        hand_file=hand_file if hand_file.is_file() else None)
+        hand_file=hand_file if hand_file.is_file() else None, margin=margin)
 
 
 def prepare_inferred_dir(out, overwrite: bool = False) -> Path:
@@ -278,7 +379,8 @@ def interaction_arrays(inf: InferredInteraction) -> dict:
     no contact events (E = 0), every coordinate flagged as a default, and ``source`` "inferred"."""
     N = len(inf.names)
     settings = {"result": str(inf.result), "solution": inf.solution, "frames": list(inf.frames),
-                "compliance": inf.compliance, "tau": "pipeline.joint_torques, no smoothing"}
+                "compliance": inf.compliance, "tau": "pipeline.joint_torques, no smoothing",
+                "friction_margin": None if inf.margin is None else inf.margin.margin}
     return dict(C=inf.C, C_is_default=np.ones(N, dtype=bool), theta=inf.theta, theta_r=inf.theta_r[:, 6:],
                 root_theta_r=inf.theta_r[:, :6], tau=inf.tau, event_time=np.zeros(0),
                 event_frame=np.zeros(0, dtype=np.int64), event_sensor=np.zeros(0, dtype=np.int64),

@@ -5,8 +5,9 @@ the reference root pose), the object (pose, body twist phi^k), the contact force
 the contact slots at this configuration and the equilibrium error theta_err^k. :func:`quasi_static_step` maps it to
 step k + 1 given the next reference (theta_r^{k+1}, root reference), the compliance C and the models:
 
-1. contacts: the slots of :mod:`torchhand.interaction._contacts` (deepest point per link against the object's
-   signed distance grid and against a fixed plane, candidates up to ``margin`` away, padded with a mask); they
+1. contacts: the slots of :mod:`torchhand.interaction._contacts` (deepest point per link against the object - its
+   signed distance grid, or with ``geometry="capsules"`` and :attr:`StepObject.mesh` the link's capsule against the
+   exact mesh - and against a fixed plane, candidates up to ``margin`` away, padded with a mask); they
    were found at the end of the previous step (step 9) or by :func:`initial_state`;
 2. friction pyramids D_i with ``pyramid_m`` tangent pairs (§7.1.1);
 3-5. G = J C J^T over the 6 + D generalized coordinates (root angular, root linear, joints): the root entries of
@@ -27,18 +28,23 @@ Generalized coordinates (6 + D) are those of ``torchhand.hand.dynamics.point_jac
 :func:`torchhand.interaction.default_compliance`. Units: metres, seconds, radians, newtons; compliance rad/(N m)
 (root linear m/N); forces are those ON THE HAND (the paper's f_i; torchhand's ``contact_force`` on the object is -f).
 
-Choices the paper leaves open (design note §3): ``pyramid_m = 4`` by default, because an inscribed 2m-gon
-holds only mu cos(pi / 2m) in its worst direction, 0.866 mu at m = 3, below the 0.9 mu imminent-slip threshold of
-§8.1, while m = 4 holds 0.924 mu; h = 1/120 s; plane contacts are hand-plane rows with the hand's G block and
-U_phi = 0 (an extension). Object-plane contacts (an extension, design note §3 item 12): when the object has
-support points (:attr:`StepObject.support`) and there is a plane, each support point is a slot whose first body is
-the object and whose counterpart is the rigid plane: G block 0, J rows 0, and the object's rigid-body terms with the
-sign of the force the object receives. With sign s_i = -1 for a hand-object slot (the object receives -f_i) and
-s_i = +1 for an object-plane slot (it receives +f_i), every object slot moves by p_i = u_i + h^2 Gamma_i Ad M^-1
-Ad^T sum_j s_j Gamma_j^T f_j, and the relative motion of the slot's first body is du_i = (hand motion) + s_i p_i;
-so Eq. 10 holds with U_phi -> S U_phi S and u_phi -> -S u_phi, S = diag(s_i I3). An object then rests on the table
-(its weight carried by those slots) and is lifted when the hand's forces take it over. Joint limits are ignored
-(§8.3).
+Choices the paper leaves open (design note §3): ``pyramid_m = 4`` by default, because an inscribed 2m-gon holds only mu
+cos(pi / 2m) in its worst direction, 0.866 mu at m = 3, below the 0.9 mu imminent-slip threshold of §8.1, while m = 4
+holds 0.924 mu; h = 1/120 s; plane contacts are hand-plane rows with the hand's G block and U_phi = 0 (an extension);
+finger-finger contacts (``StepSettings.self_contacts``, an extension) are rows of the relative Jacobian J_a - J_b of the
+two fingers' surface points, also with U_phi = 0. Object-plane contacts (an extension, design note §3 item 12): when the
+object has support points (:attr:`StepObject.support`) and there is a plane, each support point is a slot whose first
+body is the object and whose counterpart is the rigid plane: G block 0, J rows 0, and the object's rigid-body terms with
+the sign of the force the object receives. With sign s_i = -1 for a hand-object slot (the object receives -f_i) and s_i
+= +1 for an object-plane slot (it receives +f_i), every object slot moves by p_i = u_i + h^2 Gamma_i Ad M^-1 Ad^T sum_j
+s_j Gamma_j^T f_j, and the relative motion of the slot's first body is du_i = (hand motion) + s_i p_i; so Eq. 10 holds
+with U_phi -> S U_phi S and u_phi -> -S u_phi, S = diag(s_i I3). An object then rests on the table (its weight carried
+by those slots) and is lifted when the hand's forces take it over. Joint limits (the paper ignores them, §8.3; design
+note §3 item 13): step 8 clamps theta^{k+1}'s finger joints into the hand's limits (``StepSettings.clamp_joints``,
+default on) and reports how far (``StepReport.joint_clamp``). theta_err is left as Eq. 7 gives it: the next step then
+predicts the clamped joint's motion from where it actually is, which is exact while it stays at its limit (the clamp is
+absolute, recomputed from theta_r and C J^T f every step, so it does not accumulate); only the step at which a joint
+reaches its limit mispredicts, by that step's clamp.
 
 Batched variants: :class:`StepObject` may carry one mass and one hand-object friction coefficient per rollout
 (``masses``, ``mus``; the inertia scales with the mass), so that B rollouts of different objects share one batched
@@ -60,7 +66,7 @@ from torchhand.kernels.status import SolverStatus
 from ..conventions import check_tensor
 from ..errors import InputValueError
 from ..lemke import lemke
-from ._contacts import BODY_OBJECT, BODY_OBJECT_ENV, Contacts, TablePlane, find_contacts
+from ._contacts import BODY_OBJECT, BODY_OBJECT_ENV, BODY_SELF, Contacts, TablePlane, find_contacts, self_pairs
 
 __all__ = ["StepObject", "StepSettings", "StepState", "StepReport", "TablePlane", "Contacts", "initial_state",
            "quasi_static_step", "root_displacement", "displace_root", "SOLVERS"]
@@ -80,6 +86,10 @@ class StepObject:
              (no object-plane contacts)
     masses:  one mass per rollout, (B,) floats, kg, or None (``mass`` for all); the inertia scales by masses / mass
     mus:     one hand-object friction coefficient per rollout, (B,) floats, or None (``mu`` for all)
+    mesh:    the exact object mesh, :class:`~torchhand.check.geometry.ObjectMesh` (object frame; a trimesh.Trimesh
+             is converted), or None. With ``StepSettings.geometry = "capsules"`` the hand-object slots come from the
+             links' capsules against it (:mod:`._contacts`), the geometry ``torchhand check`` uses, and ``sdf`` may
+             be None; otherwise from the surface samples in ``sdf``
     """
 
     sdf: object
@@ -90,8 +100,15 @@ class StepObject:
     support: torch.Tensor | None = None
     masses: tuple | None = None
     mus: tuple | None = None
+    mesh: object = None
 
     def __post_init__(self):
+        if self.mesh is not None and not hasattr(self.mesh, "hull_distance_bound"):
+            from ..check.geometry import object_mesh
+
+            object.__setattr__(self, "mesh", object_mesh(self.mesh, float(self.mass)))
+        if self.sdf is None and self.mesh is None:
+            raise InputValueError("StepObject: give its signed distance grid (sdf) or its exact mesh (mesh)")
         for name in ("masses", "mus"):
             v = getattr(self, name)
             if v is not None:
@@ -113,9 +130,12 @@ class StepObject:
 
     @classmethod
     def from_rigid(cls, obj, sdf, mu: float = 1.0, *, support: torch.Tensor | None = None,
-                   masses=None, mus=None) -> "StepObject":
-        """From a :class:`~torchhand.objects.RigidObject` and its grid (support, masses, mus: see the fields)."""
-        return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu, support, masses, mus)
+                   masses=None, mus=None, mesh=None) -> "StepObject":
+        """From a :class:`~torchhand.objects.RigidObject` and its grid (support, masses, mus, mesh: see the
+        fields; ``mesh=True`` takes the object's own mesh)."""
+        mesh = obj.mesh if mesh is True else mesh
+        return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu, support, masses, mus,
+                   mesh)
 
     def mass_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
         """Masses, (B,), kg."""
@@ -153,17 +173,24 @@ class StepObject:
 class StepSettings:
     """Settings of :func:`quasi_static_step`.
 
-    h: time step, seconds (1/120: the interaction's frame rate); pyramid_m: tangent pairs m (module docstring);
-    margin: contact candidate distance, metres; gravity: world, m/s^2; solver: "lemke" | "pgs" | "auto";
-    pgs_max_iters, pgs_tol: sweep limit and tolerance on ||min(z, M z + q)||_inf (metres / newtons) of the batched
-    solver (None: its per-dtype defaults); lemke_tol: Lemke's tolerance on the same residual (absolute: the LCP's
-    F and E blocks have unit entries); 1e-7 m / N accepts the round-off of the final basis solve on problems whose
-    A = D^T (G - U_phi) D is far from full rank (planar fingers, many contacts); geometry: plane contacts from
-    "samples" or exact "capsules"; env_compliance: compliance of the object-plane contacts, m/N (1e-6: a 3 N box
-    sinks by 0.75 um per corner). Deviation: object-plane slots are quasi-rigid (normal and tangential
-    displacement eps f^{k+1} added to nu, as in the elastic contact of Pauly et al. 2004 the paper builds on),
-    which makes the force distribution over several resting corners unique and the LCP well conditioned for
-    Lemke and PGS (with eps = 0 several corners give a rank-deficient A); 0 gives exactly rigid rows
+    h: time step, seconds (1/120: the interaction's frame rate); pyramid_m: tangent pairs m (module docstring); margin:
+    contact candidate distance, metres; gravity: world, m/s^2; solver: "lemke" | "pgs" | "auto"; pgs_max_iters, pgs_tol:
+    sweep limit and tolerance on ||min(z, M z + q)||_inf (metres / newtons) of the batched solver (None: its per-dtype
+    defaults); lemke_tol: Lemke's tolerance on the same residual (absolute: the LCP's F and E blocks have unit entries);
+    1e-7 m / N accepts the round-off of the final basis solve on problems whose A = D^T (G - U_phi) D is far from full
+    rank (planar fingers, many contacts); lemke_restarts: covering vectors Lemke tries after a run that does not
+    converge (8: the step's LCP matrix is not copositive-plus once the object's U_phi enters - its symmetric part is
+    indefinite - so a ray termination need not mean that no solution exists; measured: a resynthesis step that the first
+    three covering vectors left at a ray was solved by a later one); geometry: plane contacts (and object contacts when
+    the object has its exact ``mesh``) from the surface "samples" or the exact "capsules"; env_compliance: compliance of
+    the object-plane contacts, m/N (1e-6: a 3 N box sinks by 0.75 um per corner). Deviation: object-plane slots are
+    quasi-rigid (normal and tangential displacement eps f^{k+1} added to nu, as in the elastic contact of Pauly et al.
+    2004 the paper builds on), which makes the force distribution over several resting corners unique and the LCP well
+    conditioned for Lemke and PGS (with eps = 0 several corners give a rank-deficient A); 0 gives exactly rigid rows;
+    clamp_joints: clamp theta^{k+1}'s finger joints to ``hand.joint_limits`` (design note §3 item 13; the amount is
+    ``StepReport.joint_clamp``); False reproduces the paper's step, which ignores joint limits; self_contacts:
+    finger-finger slots between the capsules of different fingers (:mod:`._contacts`, an extension: the paper's fingers
+    pass through each other); self_mu: their friction coefficient (0: frictionless)
     """
 
     h: float = 1.0 / 120.0
@@ -174,8 +201,12 @@ class StepSettings:
     pgs_max_iters: int | None = None
     pgs_tol: float | None = None
     lemke_tol: float = 1e-7
+    lemke_restarts: int = 8
     geometry: str = "samples"
     env_compliance: float = 1e-6
+    clamp_joints: bool = True
+    self_contacts: bool = False
+    self_mu: float = 0.0
 
     def __post_init__(self):
         if not self.h > 0:
@@ -186,6 +217,10 @@ class StepSettings:
             raise InputValueError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
         if not self.margin >= 0:
             raise InputValueError(f"margin: expected >= 0 metres, got {self.margin}")
+        if not self.self_mu >= 0:
+            raise InputValueError(f"self_mu: expected >= 0, got {self.self_mu}")
+        if not (isinstance(self.lemke_restarts, int) and self.lemke_restarts >= 0):
+            raise InputValueError(f"lemke_restarts: expected an integer >= 0, got {self.lemke_restarts!r}")
         if not self.env_compliance >= 0:
             raise InputValueError(f"env_compliance: expected >= 0 m/N, got {self.env_compliance}")
 
@@ -237,6 +272,9 @@ class StepReport:
     lcp:        the solved problem over the active slots only (:class:`~torchhand.kernels.contact_lcp.KryPaiLCP`,
                 Na = max active count, active slots first, padding masked)
     order:      slot index of each of its Na contacts, (B, Na), long
+    joint_clamp: ||theta_r^{k+1} + (C J^T f^{k+1})_joints - theta^{k+1}||_inf, how far the step clamped a finger
+                joint back into the hand's limits, (B,), radians (0: no joint reached a limit; always 0 with
+                ``clamp_joints=False``)
     """
 
     status: torch.Tensor
@@ -254,6 +292,7 @@ class StepReport:
     theta_err_max: torch.Tensor
     lcp: KryPaiLCP
     order: torch.Tensor
+    joint_clamp: torch.Tensor
 
 
 def root_displacement(root: torch.Tensor, root_r: torch.Tensor) -> torch.Tensor:
@@ -274,7 +313,9 @@ def displace_root(root_r: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
 def _contacts(hand, q, root, object_pose, obj, env, settings) -> Contacts:
     return find_contacts(hand, q, root, sdf=None if obj is None else obj.sdf,
                          object_pose=object_pose if obj is not None else None, plane=env, margin=settings.margin,
-                         geometry=settings.geometry, object_points=None if obj is None else obj.support)
+                         geometry=settings.geometry, object_points=None if obj is None else obj.support,
+                         object_mesh=None if obj is None else obj.mesh,
+                         self_pairs=self_pairs(hand) if settings.self_contacts else None)
 
 
 def _generalized_force(J: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
@@ -354,7 +395,7 @@ def _solve(lcp, mask_c: torch.Tensor, beta0: torch.Tensor, settings: StepSetting
             na = int(counts[b])
             # active slots come first: the LCP of the active contacts is the leading block (beta rows, then lambda)
             rows = torch.cat([torch.arange(na * K), Na * K + torch.arange(na)])
-            out = lemke(Mc[b][rows][:, rows], qc[b][rows], tol=settings.lemke_tol)
+            out = lemke(Mc[b][rows][:, rows], qc[b][rows], tol=settings.lemke_tol, restarts=settings.lemke_restarts)
             beta[b] = 0
             beta[b, :na] = torch.from_numpy(out.x[: na * K]).reshape(na, K).to(beta)
             status[b], residual[b], iters[b] = int(out.status), out.residual, out.pivots
@@ -415,6 +456,7 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
         mu_obj = like.new_zeros(B, 1)
     mu_env = like.new_full((B, 1), env.mu if env is not None else 0.0)
     mu = torch.where(c.body == BODY_OBJECT, mu_obj, mu_env)
+    mu = torch.where(c.body == BODY_SELF, like.new_full((B, 1), settings.self_mu), mu)
     fk = state.forces.reshape(B, 3 * N)
     sp = kry_pai_s_prime(Dfull, c.separation, G=G, f_k=fk, J=c.J, dtheta_r=dth, u_phi=u)
     order, mask_c = _compact(c.mask)
@@ -448,7 +490,9 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
     else:
         phi_next, pose_next = state.phi, state.object_pose
     delta = C * _generalized_force(c.J, f_next)
-    q_next = theta_r_next + delta[:, 6:]
+    q_free = theta_r_next + delta[:, 6:]
+    q_next = hand.clamp_to_limits(q_free) if settings.clamp_joints else q_free
+    clamp = (q_free - q_next).abs().amax(-1) if D else q_free.new_zeros(B)
     root_next = displace_root(root_r_next, delta[:, :6])
     du = ((G @ (f_next.reshape(B, -1) - fk)[..., None]).squeeze(-1) + (c.J @ dth[..., None]).squeeze(-1)
           + settings.env_compliance * on_tab.repeat_interleave(3, dim=1).to(like) * f_next.reshape(B, -1)
@@ -461,5 +505,5 @@ def quasi_static_step(state: StepState, hand, theta_r_next: torch.Tensor, root_r
                   object_pose=pose_next, phi=phi_next, forces=f_keep, beta=beta * c_new.mask[..., None],
                   contacts=c_new, theta_err=theta_err)
     report = StepReport(status, residual, iters, c.mask.sum(1), c.mask, Dfull, beta, lam, nu, sigma, du, sp,
-                        theta_err.abs().amax(-1), lcp, order)
+                        theta_err.abs().amax(-1), lcp, order, clamp)
     return new, report
