@@ -16,6 +16,12 @@ Resynthesis on a scene's object (:mod:`torchhand.interaction.resynth`, ``torchha
     result = resynthesize(load_interaction("interaction.npz"), scene, variants=expand_variants(...))
     write_resynthesis(result, out_dir)
 
+An interaction inferred from a ``torchhand synthesize`` result (:mod:`torchhand.interaction.inferred`,
+``torchhand capture from-result``)::
+
+    inf = infer_interaction("out/box-turn", solution=0, frames="12:54")
+    write_inferred(inf, prepare_inferred_dir("out/inferred"))
+
 Generalized coordinates are the 6 + D columns of ``point_jacobian(..., wrt_root=True)``: root angular (3), root
 linear (3), then the joints. Units: metres, seconds, radians, newtons; compliance rad/(N m) (root linear m/N).
 Format and command line: docs/interaction_capture.md.
@@ -32,6 +38,7 @@ from .resynth import (Interaction, ResynthResult, ResynthSettings, Rollout, Roll
                       load_interaction, object_slip, resynthesize, save_interaction, simulate, write_resynthesis)
 from .step import (SOLVERS, StepObject, StepReport, StepSettings, StepState, TablePlane, displace_root,
                    initial_state, quasi_static_step, root_displacement)
+from .inferred import InferredInteraction, infer_interaction, prepare_inferred_dir, write_inferred
 from .pipeline import (MIN_FPS, CaptureEstimate, NoContactError, estimate_capture, generalized_coordinates,
                        joint_torques, prepare_output_dir, write_interaction)
 
@@ -48,4 +55,5 @@ __all__ = [
     "BODY_OBJECT_ENV", "support_points", "GRIP_MODES", "GripSettings", "GripState", "grip_update", "slip_ratio",
     "Interaction", "ResynthResult", "ResynthSettings", "Rollout", "RolloutStatus", "Variant", "expand_variants",
     "load_interaction", "object_slip", "resynthesize", "save_interaction", "simulate", "write_resynthesis",
+    "InferredInteraction", "infer_interaction", "prepare_inferred_dir", "write_inferred",
 ]
