@@ -222,22 +222,27 @@ def test_cli_bad_inputs_exit_2(scene_dir, tmp_path, capsys):
 
 
 def test_cli_unsuitable_grasp_exits_1(scene_dir, tmp_path, capsys):
-    """Unsuitable at the first window: nothing written. Unsuitable later (a 1000 N push on the object from frame 4,
-    beyond what 30 N contacts can hold): the frames before the failing window are a valid, partial result."""
+    """Unsuitable at frame 0 (a 1000 N push on the object from the start, beyond what 30 N contacts can hold):
+    nothing written. Unsuitable later (the push from frame 4): the frames before the infeasible frame are a valid,
+    partial result (the windows before it plan up to the frame before it while no reachable contact helps)."""
     import json
     import re
     import shutil
 
     from torchhand.result import load_result
 
+    scene = load_scene(scene_dir)
+    push = torch.zeros(scene.T, 6, dtype=torch.float64)
+    push[:, 0] = 1000.0
+    pushed = dataclasses.replace(scene, external_wrench=push).export(tmp_path / "pushed0")
+    shutil.copyfile(scene_dir / "grasp.npz", pushed / "grasp.npz")
     out = tmp_path / "u"
-    assert cli(["manipulate", str(scene_dir), "--out", str(out), "--max-force", "0.05", "--no-progress"]) == 1
+    assert cli(["manipulate", str(pushed), "--out", str(out), "--frames", "0:6", "--no-progress"]) == 1
     err = capsys.readouterr().err
-    assert re.search(r"^torchhand: grasp unsuitable for this motion at frame \d+: .*; nothing written$", err.strip())
+    assert re.search(r"^torchhand: grasp unsuitable for this motion at frame 0: .*; nothing written$", err.strip())
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (out / "solutions").exists()
 
-    scene = load_scene(scene_dir)
     push = torch.zeros(scene.T, 6, dtype=torch.float64)
     push[4:, 0] = 1000.0
     pushed = dataclasses.replace(scene, external_wrench=push).export(tmp_path / "pushed")
@@ -249,15 +254,15 @@ def test_cli_unsuitable_grasp_exits_1(scene_dir, tmp_path, capsys):
     assert err.startswith("torchhand: grasp unsuitable for this motion at frame 4: ") and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     stats = json.loads((out / "stats.json").read_text())
-    assert stats["complete"] is False and stats["status"] == "grasp_unsuitable" and stats["T"] == 3
+    assert stats["complete"] is False and stats["status"] == "grasp_unsuitable" and stats["T"] == 4
     u = stats["unsuitable"]
-    assert u["frame"] == 4 and u["window"] == 3 and u["frames_done"] == 3
+    assert u["frame"] == 4 and u["window"] == 4 and u["frames_done"] == 4
     assert u["deficit_force_N"] > 500          # most of the 1000 N push is beyond the contacts
     res = load_result(out)
-    assert not res.complete and res.scene.T == 3 and res.solution(0).T == 3
-    assert torch.equal(res.scene.external_wrench, push[:3])
+    assert not res.complete and res.scene.T == 4 and res.solution(0).T == 4
+    assert torch.equal(res.scene.external_wrench, push[:4])
     z = np.load(out / "solutions" / "sol_000.npz")
-    assert z["torque"].shape[0] == 3 and z["contact_mask"].shape[0] == 3 and z["q"].shape[0] == 3
+    assert z["torque"].shape[0] == 4 and z["contact_mask"].shape[0] == 4 and z["q"].shape[0] == 4
 
 
 def test_plots_of_a_result_and_its_ablation(runs, tmp_path, capsys):

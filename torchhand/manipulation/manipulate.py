@@ -10,6 +10,11 @@ For k = 0 .. T-1:
    carrying the result of the frames synthesized before it (``partial``) for a partial result directory.
 3. **Synthesize** frame k (Sec. 5, :func:`.synth.synthesize_frame`): q, the root pose and the hand points h; the
    object points p follow from Eq. 6 and are projected onto the mesh (trimesh), with the mesh's normal there.
+   An added contact carries force only once it touches: one whose capsule is still more than ``plan.TOUCH_TOL``
+   (1 mm) from the object after the synthesis of its first active frame waits one frame more, and frame k is
+   planned (contacts added then must already touch) and synthesized again without it. Added contacts are chosen
+   reachable in the frames before they carry force (``plan._candidate``, ``plan._reach``; docs/manipulation.md,
+   "When added contacts carry force").
 4. **Re-project the forces** (addition (c) of docs/manipulation.md): ``min sum_i |B_i(p^k) lambda_i - f_i^plan|^2``
    subject to Eq. 1 at frame k with the new contact points, the cones and the force limit (ADMM of
    :func:`torchhand.kernels.convex_qp.solve_convex_qp`, warm-started from the plan); the torques ``u^k = n(q^k) +
@@ -32,6 +37,7 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -82,6 +88,8 @@ class ManipulationResult:
     reproject_status: :class:`~torchhand.kernels.status.SolverStatus` of each frame's re-projection QP (T,)
     num_added: contacts added; settings; timings: seconds (``stage1_s``, ``plan_s``, ``synth_s``, ``total_s``,
     ``per_frame_s``)
+    deferred: times an added contact was still apart (more than ``plan.TOUCH_TOL``) at the frame it was to carry
+    force first, so that frame was planned and synthesized again without it
     """
 
     scene: object
@@ -115,6 +123,7 @@ class ManipulationResult:
     friction: float
     mass: float
     timings: dict = field(default_factory=dict)
+    deferred: int = 0
 
     @property
     def T(self) -> int:
@@ -165,7 +174,8 @@ def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None
     Raises:
         GraspUnsuitable: a planning window stays infeasible whatever contacts are added (frame, wrench deficit);
             its ``window`` is the frame k whose window failed and its ``partial`` the :class:`ManipulationResult`
-            of frames 0 .. k-1 (the scene cut to them), or None when k = 0;
+            of frames 0 .. k-1 (the scene cut to them; the last frame's forces re-balanced for the cut scene, or the
+            frame dropped when they cannot be), or None when no frame is left;
         InputValueError / UnknownNameError: a grasp that does not fit its hand or cannot be snapped.
 
     The per-frame subproblems are small dense NumPy solves; they run with one BLAS thread (threadpoolctl), because
@@ -203,46 +213,42 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
     added_k: dict = {}
     f_prev, z = run.f_init_vals, None
     rows, per_frame, t_plan, t_synth = [], [], 0.0, 0.0
+    geo.reach_step = ss.joint_speed / float(scene.fps)      # added contacts must be reachable (plan._candidate)
+    geo.reach_root = (ss.root_rate / float(scene.fps), ss.root_speed / float(scene.fps))
+    deferred = 0
     for k in range(T):
         t0 = time.perf_counter()
         H_before = len(c.link)
-        try:
-            f_k, z = _plan._step(run, k, f_prev, z)
-        except GraspUnsuitable as err:                      # keep the frames done before it (None when none)
-            err.window = k
-            err.partial = None if not rows else _collect(scene, grasp, hand, settings, run, rows, u_bar, {
-                "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
-                "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame})
-            raise
-        lam_k = run.out[-1][1]
-        t1 = time.perf_counter()
+        z_in = z
+        while True:                                        # plan and synthesize frame k (again when a contact is late)
+            try:
+                f_k, z = _plan._step(run, k, f_prev, z_in)
+            except GraspUnsuitable as err:                  # keep the frames done before it (None when none)
+                err.window = k
+                while rows and not _rebalance_last(run, rows, scene, settings):
+                    rows.pop()                              # its forces cannot balance the cut scene: not written
+                err.partial = None if not rows else _collect(scene, grasp, hand, settings, run, rows, u_bar, {
+                    "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
+                    "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame}, deferred)
+                raise
+            t1 = time.perf_counter()
+            res, _, closing, active, slide, links, prev_k, f_k, lam_k = _synth_frame(
+                run, ctx, k, f_k, prev, pose_prev, H_before, added_k, ss)
+            # an added contact carries force only once it touches (Liu: the slack "reaches zero at the frame when the
+            # contact is established"): one still apart after its first frame waits a frame and frame k is planned
+            # and synthesized again without it (contacts added then must touch already, plan._candidate)
+            late = [i for i in np.flatnonzero(closing) if abs(float(res.gap[i])) > _plan.TOUCH_TOL]
+            if not late:
+                break
+            run.out.pop()
+            for i in late:
+                c.start[i] = k + 1
+            deferred += len(late)
+            z_in = None
+        prev = prev_k
         H = len(c.link)
-        links = np.array(c.link)
-        for i in range(H_before, H):                       # contacts added by this window
-            added_k[i] = (k, float(np.linalg.norm(_frame_points(hand, prev, links[i:i + 1], np.stack(c.h)[i:i + 1])[0]
-                                                  - (pose[k][:3, :3] @ c.p[i] + pose[k][:3, 3]))))
-        start = np.array(c.start)
         source = np.array(c.source)
-        active = start <= k
-        closing = active & (start == k) & (source >= 0)
-        approach = {}
-        for i, (ta, d) in added_k.items():
-            te = start[i]
-            if k < te:
-                approach[i] = d * (te - k) / max(te - ta, 1)
-        h_prev = np.concatenate([prev.h, np.stack(c.h)[H_before:]], 0) if H > len(prev.h) else prev.h
-        p_prev = np.concatenate([prev.p, np.stack(c.p)[H_before:]], 0) if H > len(prev.p) else prev.p
-        prev = HandFrame(q=prev.q, root=prev.root, h=h_prev, p=p_prev)
-        mu = geo.mu
-        normals_prev = np.stack(c.n)
-        n_w = normals_prev @ pose[k][:3, :3].T
-        t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
-        slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], mu, ss.boundary))
-                          for i in range(H)])
-        rel = pose[k] @ np.linalg.inv(pose_prev)
-        guess = HandFrame(q=prev.q.copy(), root=rel @ prev.root, h=prev.h.copy(), p=prev.p)
-        res = synthesize_frame(ctx, prev, guess, links, f_k[:H], active, pose[k], pose_prev, normals_prev, slide,
-                               approach, closing, settle=k == 0)
+        n_w = np.stack(c.n) @ pose[k][:3, :3].T
         q, root, h = res.frame.q, res.frame.root, res.frame.h
         if k == 0:                                         # grasp contacts the capsule model cannot close: released
             for i in np.flatnonzero(active & (np.abs(res.gap) > RELEASE_GAP)):
@@ -263,6 +269,9 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
                 c.n[i], c.t1[i] = n, (t / np.linalg.norm(t) if np.linalg.norm(t) > 1e-9 else _plan._normal_frame(n))
                 p_new[i] = c.p[i]
         f_fin, lam_fin, rstatus = _reproject(run, k, f_k, lam_k)
+        snap = dataclasses.replace(c, link=list(c.link), h=list(c.h), p=list(c.p), n=list(c.n), t1=list(c.t1),
+                                   start=list(c.start), source=list(c.source), h_obj=list(c.h_obj),
+                                   slide=dict(c.slide))      # the contacts as frame k was re-projected with
         u = torques(hand, q[None], root[None], links[active], h[active][None], f_fin[:H][active])[0]
         # contact states for frame k+1 (Eq. 7's relative velocity of the material points)
         xm = _frame_points(hand, HandFrame(q=q, root=root, h=None, p=None), links, prev.h)
@@ -280,7 +289,7 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         rows.append(dict(H=H, q=q, root=root, u=u, h=h.copy(), p=p_new.copy(), point=np.stack(c.p) @ Rs.T + os_,
                          normal=np.stack(c.n) @ Rs.T, force=f_fin, lam=lam_fin, plan=f_k.copy(), active=active,
                          sliding=sliding_now & active, added=active & (source >= 0), obj=res.objective,
-                         it=res.iterations, conv=res.converged, viol=res.violation, rstatus=rstatus))
+                         it=res.iterations, conv=res.converged, viol=res.violation, rstatus=rstatus, snap=snap))
         geo.move_hand(q, np.linalg.inv(pose[k]) @ root)
         prev = HandFrame(q=q, root=root, h=h, p=p_new)
         pose_prev = pose[k]
@@ -293,7 +302,80 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
             progress(k, T, t2 - t_start)
     return _collect(scene, grasp, hand, settings, run, rows, u_bar, {
         "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
-        "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame})
+        "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame}, deferred)
+
+
+def _rebalance_last(run, rows: list, scene, settings: ManipulationSettings) -> bool:
+    """A partial result is the result of the scene cut to its frames, whose required wrench at the last frame
+    differs (one-sided differences at the end of the motion instead of central ones): re-project that frame's
+    forces onto it (addition (c)) and recompute its torques, so the partial result balances its own scene.
+    Returns False when no forces of that frame's contacts balance it (the caller drops the frame)."""
+    from ..synthesis.problem import required_wrench
+
+    geo, c, ps = run.geo, run.c, settings.plan
+    T = len(rows)
+    k, r = T - 1, rows[-1]
+    cut = scene.with_frames(0, T)
+    obj = cut.object
+    mass = float(ps.mass if ps.mass is not None else obj.mass)
+    inertia = torch.tensor(np.array(obj.inertia), dtype=torch.float64) * (mass / float(obj.mass))
+    _, wrench = required_wrench(cut.object_pose.double(), torch.tensor(np.array(obj.com), dtype=torch.float64), mass,
+                                inertia, cut.gravity.double(), cut.fps, external=cut.external_wrench)
+    saved = geo.wrench[k].copy()
+    geo.wrench[k] = wrench[-1].numpy()
+    try:                                                # with the contacts as that frame had them
+        f, lam, status = _reproject(SimpleNamespace(c=r["snap"], geo=geo, settings=ps), k, r["force"], r["lam"])
+    finally:
+        geo.wrench[k] = saved
+    if status != int(SolverStatus.CONVERGED):
+        return False
+    m = r["active"]
+    H_row = r["H"]
+    links = np.array(c.link[:H_row])
+    r["force"], r["lam"], r["rstatus"] = f, lam, status
+    r["u"] = torques(geo.hand, r["q"][None], r["root"][None], links[m], r["h"][m][None], f[:H_row][m])[0]
+    return True
+
+
+def _synth_frame(run, ctx, k: int, f_k: np.ndarray, prev: HandFrame, pose_prev: np.ndarray, H_before: int,
+                 added_k: dict, ss):
+    """Synthesize frame k with the forces F_k just planned (Sec. 5): the contacts' states at k (active, closing,
+    sliding) and the receding slack of the added contacts that are not active yet,
+    ``sigma_j(k) = d_j (t_e - k) / (t_e - t_a)`` (t_a the frame that added it, t_e its first active frame, d_j its
+    gap at t_a). Records (t_a, d_j) of contacts added since frame k-1 in ``added_k``.
+    Returns (FrameResult, approach, closing (H,), active (H,), slide (H,), links (H,), the frame k-1 with the added
+    contacts' points appended, F_k, lambda_k)."""
+    c, geo, hand, pose = run.c, run.geo, run.geo.hand, run.geo.pose
+    lam_k = run.out[-1][1]
+    H = len(c.link)
+    links = np.array(c.link)
+    for i in range(H_before, H):                       # contacts added by this window
+        if i not in added_k:
+            x = _frame_points(hand, prev, links[i:i + 1], np.stack(c.h)[i:i + 1])[0]
+            added_k[i] = (k, float(np.linalg.norm(x - (pose[k][:3, :3] @ c.p[i] + pose[k][:3, 3]))))
+    start = np.array(c.start)
+    source = np.array(c.source)
+    active = start <= k
+    closing = active & (start == k) & (source >= 0)
+    approach = {}
+    for i, (ta, d) in added_k.items():
+        te = start[i]
+        if k < te:
+            approach[i] = d * (te - k) / max(te - ta, 1)
+    Hp = len(prev.h)
+    h_prev = np.concatenate([prev.h, np.stack(c.h)[Hp:]], 0) if H > Hp else prev.h
+    p_prev = np.concatenate([prev.p, np.stack(c.p)[Hp:]], 0) if H > Hp else prev.p
+    prev = HandFrame(q=prev.q, root=prev.root, h=h_prev, p=p_prev)
+    normals_prev = np.stack(c.n)
+    n_w = normals_prev @ pose[k][:3, :3].T
+    t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
+    slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu, ss.boundary))
+                      for i in range(H)])
+    rel = pose[k] @ np.linalg.inv(pose_prev)
+    guess = HandFrame(q=prev.q.copy(), root=rel @ prev.root, h=prev.h.copy(), p=prev.p)
+    res = synthesize_frame(ctx, prev, guess, links, f_k[:H], active, pose[k], pose_prev, normals_prev, slide,
+                           approach, closing, settle=k == 0)
+    return res, approach, closing, active, slide, links, prev, f_k, lam_k
 
 
 def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
@@ -301,7 +383,7 @@ def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
     return _points(hand, frame.q, frame.root, np.asarray(links), np.asarray(local))
 
 
-def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings) -> ManipulationResult:
+def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings, deferred: int = 0) -> ManipulationResult:
     """The result of the frames in ``rows`` (all of them, or the first ``len(rows)`` when the motion stopped early:
     then the scene is cut to those frames and the slots are the contacts that existed when it stopped)."""
     geo, c = run.geo, run.c
@@ -339,7 +421,8 @@ def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings) -> Manipul
         env_mask=geo.env_mask[:T].copy(), env_point=geo.env_points[:T].copy(),
         num_added=int(sum(s >= 0 for s in c.source[:K])),
         settings=settings, friction=geo.mu,
-        mass=float(ps.mass if ps.mass is not None else scene.object.mass), timings=timings, **out)
+        mass=float(ps.mass if ps.mass is not None else scene.object.mass), timings=timings, deferred=deferred,
+        **out)
 
 
 # ------------------------------------------------------------------------------------------------ result directory
@@ -401,6 +484,7 @@ def stats_dict(result: ManipulationResult, unsuitable: GraspUnsuitable | None = 
             "scene": r.scene.name,
             "T": r.T, "fps": float(r.scene.fps), "solutions": 1, "time_s": r.timings.get("total_s"),
             "frames_per_second": fps_run, "timings_s": r.timings, "added_contacts": r.num_added,
+            "deferred_contacts": r.deferred,
             "max_joint_speed": s.synth.joint_speed, "sqp_iterations": r.iterations.tolist(),
             "sqp_converged": r.converged.tolist(), "reproject_status": r.reproject_status.tolist(),
             "settings": {"plan": dataclasses.asdict(s.plan), "synth": dataclasses.asdict(s.synth)},

@@ -42,6 +42,20 @@ Readings and deviations (documented choices; the paper is silent or the rigid gr
       *is* the last one, except in the first window (and Stage 1), whose frames are all new.
     * A candidate's link must hold no contact yet (Liu: only "not on S_i"), so every addition brings a new link;
       once the closest candidates of all contacts are taken, the next round cycles again with the added ones.
+    * When added contacts become active. Liu (Sec. 4.3, Sec. 5): new contacts go to "the last frame of the window",
+      and the synthesis enforces Eq. 6 "with a receding slack that reaches zero at the frame when the contact is
+      established"; a contact therefore carries force only from the frame it touches, and the frames before it are
+      its approach. Read that way, three rules hold in the manipulation loop (``geo.reach_step`` set):
+      (1) a candidate must be reachable in the frames left before it carries force, t_a - k (:func:`_candidate`,
+      :func:`_reach`: its gap at most ``TOUCH_TOL`` plus what the hand can close at the synthesis' speed bounds
+      while the active contacts keep still; a link moved only by the wrist, such as a metacarpal of the default
+      hand, reaches next to nothing); the cycle over the contacts skips unreachable candidates and takes the reachable
+      one nearest the highest-force contact; (2) with t_a = k (the window's first frame is infeasible, which Liu
+      calls the rare case where the synthesis' new contact positions break the plan) only a touching candidate
+      can be added, otherwise the grasp is unsuitable, as Liu deems it; (3) the loop (:mod:`.manipulate`) checks
+      after the synthesis that an added contact touches (within ``TOUCH_TOL``) at its first active frame, and
+      otherwise plans and synthesizes that frame again with the contact pending one frame more.
+      Planning alone (:func:`plan_motion`, rigid grasp) has no hand motion and keeps Liu's plain choice.
     * Added contacts keep their first position (no synthesis moves them onto the hand yet) and stay to the end.
     * The per-frame LP status and the QP status are recorded per frame; a QP that fails although every LP is
       feasible (a solver failure, not an infeasible motion) keeps the LP's witness forces for that frame and its
@@ -253,7 +267,13 @@ class _Geometry:
         self.sample_local = hand.sample_points.detach().cpu().double().numpy()
         qt = torch.as_tensor(grasp.q)[None]
         self.link_pose = (torch.as_tensor(grasp.wrist_in_object) @ hand.forward_kinematics(qt)[0]).numpy()
+        self.q_now = np.asarray(grasp.q, dtype=np.float64)
+        self.wrist_now = np.asarray(grasp.wrist_in_object, dtype=np.float64)
         self._moved = None
+        # Reachability of added contacts (set by the manipulation loop, which moves the hand; None: planning alone,
+        # a rigid grasp, where any link may take a contact): the joint step per frame the synthesis allows, rad.
+        self.reach_step: float | None = None
+        self.reach_root = (0.2, 1.0 / 30.0)     # root rotation (rad) and translation (m) per frame
 
     def move_hand(self, q: np.ndarray, wrist_in_object: np.ndarray) -> None:
         """The hand's current pose (joint angles (D,), wrist in the object frame (4, 4)): new contacts (Sec. 4.3)
@@ -265,6 +285,7 @@ class _Geometry:
             q, w = self._moved
             self.samples = hand_surface_in_object(self.hand, q, w)
             self.link_pose = (torch.as_tensor(w) @ self.hand.forward_kinematics(torch.as_tensor(q)[None])[0]).numpy()
+            self.q_now, self.wrist_now = q, w
             self._moved = None
 
 
@@ -286,18 +307,97 @@ def _add(c: _Contacts, geo: _Geometry, link: int, h, p, n, start: int, source: i
     c.h_obj.append(T[:3, :3] @ np.asarray(h, dtype=np.float64) + T[:3, 3])
 
 
-def _candidate(c: _Contacts, geo: _Geometry, i: int):
+TOUCH_TOL = 1e-3
+"""An added contact touches when its hand point (its link capsule, in the synthesis) is within this of the object,
+metres: half the checker's 2 mm contact-hand bound."""
+REACH_FACTOR = 1.0
+"""Fraction of the linearised approach rate (:func:`_reach`) an added contact may count on. The estimate is
+conservative already (one per-frame bound scales the whole motion); on the 1 kg test lift, ring_proximal, 22.9 mm
+away with 5 frames to go, was judged reachable at 1.0 and touched in time (not at 0.5). An overestimate costs a
+deferral, never a force before touching (:mod:`.manipulate`)."""
+
+
+def _candidate(c: _Contacts, geo: _Geometry, i: int, frames: int | None = None, k: int = 0):
     """Sec. 4.3: the hand sample closest to contact i's hand point on a link holding no contact, and its closest
-    object point with that face's inward normal; None when every link holds a contact."""
+    object point with that face's inward normal; None when every link holds a contact.
+
+    frames: the frames the hand has to close the new contact's gap (t_e - k, the synthesis of frames k+1 .. t_e;
+    0 when the contact must carry force at the current frame). With the manipulation loop's reachability
+    (``geo.reach_step`` set) the candidate must be reachable in them (:func:`_reach`); among the reachable links
+    the one closest to h_i is taken (Liu: the closest point not on S_i)."""
     geo._refresh()
     free = ~np.isin(geo.sample_link, np.array(c.link))
     if not free.any():
         return None
     d = np.linalg.norm(geo.samples - c.h_obj[i], axis=1)
     d[~free] = np.inf
-    s = int(np.argmin(d))
-    _, p, n_out = signed_distance(geo.mesh, geo.samples[s:s + 1])
-    return int(geo.sample_link[s]), geo.sample_local[s], p[0], -n_out[0]
+    if geo.reach_step is None or frames is None:
+        s = int(np.argmin(d))
+        _, p, n_out = signed_distance(geo.mesh, geo.samples[s:s + 1])
+        return int(geo.sample_link[s]), geo.sample_local[s], p[0], -n_out[0]
+    # the closest sample of every free link, nearest link first
+    links = np.unique(geo.sample_link[free])
+    best = np.array([int(np.flatnonzero(geo.sample_link == l)[np.argmin(d[geo.sample_link == l])]) for l in links])
+    best = best[np.argsort(d[best], kind="stable")]
+    x = geo.samples[best]
+    _, p, n_out = signed_distance(geo.mesh, x)
+    gap = np.linalg.norm(p - x, axis=1)
+    reach = _reach(c, geo, best, (p - x) / np.maximum(gap, 1e-12)[:, None], max(int(frames), 0), k)
+    ok = np.flatnonzero(gap <= TOUCH_TOL + reach)
+    if not len(ok):
+        return None
+    j = int(ok[0])
+    s = int(best[j])
+    return int(geo.sample_link[s]), geo.sample_local[s], p[j], -n_out[j]
+
+
+def _reach(c: _Contacts, geo: _Geometry, samples: np.ndarray, direction: np.ndarray, frames: int,
+           k: int) -> np.ndarray:
+    """How far the hand can move each hand-surface sample along ``direction`` (P, 3), object frame, in ``frames``
+    frames while the contacts active at frame k stay where they are, metres (P,).
+
+    Linearised at the current pose: v = N N^T J^T g, the sample's Jacobian J (3, 6 + D; wrist twist and joints,
+    object frame) projected on the null space N of the active contacts' point Jacobians (they keep still: Eq. 7
+    without rolling), g the direction; a step t v reaches the first per-frame bound (``geo.reach_step`` per joint,
+    the synthesis' root bounds) or, over all frames, the first joint limit (joints stopped at a limit are dropped
+    and v recomputed); the sample closes ``REACH_FACTOR`` of ``t g.J v`` per frame. A link moved only by the wrist
+    closes next to nothing while other contacts hold the hand."""
+    hand, q, w = geo.hand, geo.q_now, geo.wrist_now
+    D = hand.num_joints
+    act = [j for j in range(len(c.link)) if c.start[j] <= k]
+    links = np.concatenate([geo.sample_link[samples], np.array([c.link[j] for j in act], dtype=np.int64)])
+    local = np.concatenate([geo.sample_local[samples], np.array([c.h[j] for j in act]).reshape(-1, 3)])
+    J = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(links), torch.as_tensor(local),
+                            torch.as_tensor(w)[None], wrt_root=True)[0].numpy()          # (P + A, 3, 6 + D)
+    P = len(samples)
+    lim = hand.joint_limits.numpy()
+    rate, speed = geo.reach_root
+    step = np.concatenate([np.full(3, rate), np.full(3, speed), np.full(D, geo.reach_step)])     # per frame
+    out = np.zeros(P)
+    for s in range(P):
+        use = np.ones(6 + D, dtype=bool)                 # columns not stopped at a joint limit
+        for _ in range(4):
+            Jc = J[P:].reshape(-1, 6 + D) * use[None]
+            if len(Jc):
+                _, sv, Vt = np.linalg.svd(Jc, full_matrices=True)
+                rank = int((sv > 1e-9 * max(1.0, sv[0])).sum())
+                N = Vt[rank:].T * use[:, None]                                   # (6 + D, nullity)
+            else:
+                N = np.diag(use.astype(np.float64))
+            v = N @ (N.T @ (J[s].T @ direction[s]))
+            room = np.where(v[6:] > 0, lim[:, 1] - q, q - lim[:, 0])             # to the joint limits
+            stuck = (room <= 1e-6) & (np.abs(v[6:]) > 1e-12) & use[6:]
+            if not stuck.any():
+                break
+            use[6:][stuck] = False
+        gain = float(direction[s] @ J[s] @ v)
+        if gain <= 1e-12:
+            continue
+        av = np.abs(v)
+        t_frame = float(np.min(np.where(av > 1e-15, step / np.maximum(av, 1e-300), np.inf)))
+        t_lim = float(np.min(np.where(av[6:] > 1e-15, np.maximum(room, 0.0) / np.maximum(av[6:], 1e-300), np.inf)))
+        out[s] = REACH_FACTOR * gain * min(frames * t_frame, t_lim)
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ window problems
@@ -403,8 +503,11 @@ def _wrench_fit(c: _Contacts, geo: _Geometry, t: int, settings: PlanSettings):
 
 def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.ndarray, settings: PlanSettings,
                   records: list | None) -> int:
-    """Sec. 4.3 at window k whose per-frame LPs ``feasible (n,)`` are not all true. Returns contacts added;
-    raises GraspUnsuitable when no set makes the window feasible."""
+    """Sec. 4.3 at window k whose per-frame LPs ``feasible (n,)`` are not all true. Returns the frames of the window
+    that can be planned now: n, or, in the manipulation loop (``geo.reach_step`` set) when no reachable contact makes
+    a later frame t_bad > k feasible yet, t_bad - k (the next windows, with the hand moved on, try again); raises
+    GraspUnsuitable when no set makes the window's first infeasible frame feasible and that frame is k (or, planning
+    alone, whenever the window stays infeasible)."""
     t_a = k + int(np.argmin(feasible))
     added = 0
     if settings.added_contacts:
@@ -420,7 +523,7 @@ def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.nda
                 if i in tried or used + added >= settings.max_added:
                     continue
                 tried.add(i)
-                cand = _candidate(c, geo, i)
+                cand = _candidate(c, geo, i, t_a - k, k)
                 if cand is None:
                     continue
                 _add(c, geo, cand[0], cand[1], cand[2], cand[3], t_a, i)
@@ -433,9 +536,11 @@ def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.nda
                 break
     if not feasible.all():
         t_bad = k + int(np.argmin(feasible))
+        if geo.reach_step is not None and t_bad > k:
+            return t_bad - k
         _, deficit = _wrench_fit(c, geo, t_bad, settings)
         raise GraspUnsuitable(t_bad, deficit, tuple(geo.hand.link_names[l] for l in c.link), window=k)
-    return added
+    return n
 
 
 def _qp(c, geo, k, n, f_prev, settings, records, z_prev=None):
@@ -462,7 +567,7 @@ def _solve(c, geo, k, n, f_prev, settings, records, z_prev=None):
         return out
     feasible, _, _ = _frame_feasible(c, geo, k, n, settings, records)
     if not feasible.all():
-        _add_contacts(c, geo, k, n, feasible, settings, records)
+        n = _add_contacts(c, geo, k, n, feasible, settings, records)
         out = _qp(c, geo, k, n, _pad(f_prev, H0, geo.E, len(c.link)), settings, records)
         if out[2] == _CONVERGED:
             return out

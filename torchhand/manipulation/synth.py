@@ -25,12 +25,14 @@ Constraints (linearised at every iteration)
       ``d . t3 = 0``, ``-d . f_t <= 0`` (t3 normal to f_t in the tangent plane).
     * joint limits; ``|q - q^{k-1}| <= dq_max`` per frame; root speed and angular speed bounds; ``|s - s^{k-1}|``
       times the axis length at most ``h_step`` per frame;
-    * non-penetration (addition (a) of docs/manipulation.md): points along every link capsule's axis keep
-      ``sd >= r - margin`` from the object and ``z - r >= table - margin`` from the table; an axis point already
+    * non-penetration (addition (a) of docs/manipulation.md): capsules of different fingers within 1 cm keep
+      their axis distance ``>= r_a + r_b - margin`` (``hand.collision_pairs``); 8 points along every link capsule's
+      axis, and each contact's axis point c(s), keep ``sd >= r - margin`` from the object and ``z - r >= table - margin`` from the table; an axis point already
       deeper at the start of the frame may not go deeper;
     * contacts added by the planner (Sec. 4.3) that are not active yet approach their object point with a receding
       slack ``gap <= d_j (t_e - t) / (t_e - t_a)`` (linear; t_a the frame of addition, t_e its first active frame);
-      from t_e on they obey Eq. 6 (Eq. 7 from the frame after).
+      from t_e on they obey Eq. 6 (Eq. 7 from the frame after). The caller checks that such a contact touches at
+      t_e (``FrameResult.gap``) before its force is kept (:mod:`.manipulate`).
 
 Solver (Sec. 5.3 says SQP): Gauss-Newton on ``|r(x)|^2`` with ``r = u - u_bar`` over x = (root twist, q, s): the
 Jacobian of r analytic (``dJ^T f / dq`` from the joint axes, :mod:`.torque_derivs`, with the point Jacobians and the
@@ -38,7 +40,8 @@ link poses from the same single kinematics pass), or, with ``SynthSettings(deriv
 forward differences of :func:`torques` (one batched call per iteration); each step is a dense convex QP
 (Gauss-Newton Hessian, the proximal terms and Levenberg-Marquardt damping) solved by a Goldfarb-Idnani dual
 active-set method (:func:`dense_qp`); a step that raises the l1 merit ``|r|^2 + prox + w |violation|_1`` is rejected
-and the damping raised; an infeasible step goes to elastic mode (l1 slacks on the equalities); after ``max_iters``
+and the damping raised; an infeasible step goes to elastic mode (l1 slacks on the equalities and on the
+receding-slack rows of approaching contacts); after ``max_iters``
 iterations, least-norm restoration steps onto the constraints.
 
 Deviations from the paper (documented choices)
@@ -174,11 +177,12 @@ class FrameResult:
 
 
 class SynthContext:
-    """What stays fixed over a motion: the hand (float64, CPU), the object SDF, the capsule-axis samples, the table
-    and the equilibrium torques u_bar (6 + D,)."""
+    """What stays fixed over a motion: the hand (float64, CPU), the object SDF, the capsule-axis samples (8 per link:
+    with 4, a link lying along a box edge sank 2.2 mm between samples on the pushed test turn; 8 cost no measurable
+    time on box-turn 6:66), the table and the equilibrium torques u_bar (6 + D,)."""
 
     def __init__(self, hand, mesh, u_bar: np.ndarray, fps: float, table_height: float | None,
-                 gravity=(0.0, 0.0, -9.81), settings: SynthSettings | None = None, samples_per_link: int = 4):
+                 gravity=(0.0, 0.0, -9.81), settings: SynthSettings | None = None, samples_per_link: int = 8):
         from ..sdf import SDFGrid
 
         self.settings = settings or SynthSettings()
@@ -198,6 +202,8 @@ class SynthContext:
         self.cap_a, self.cap_b, self.cap_r = a, b, r
         lim = self.hand.joint_limits.numpy()
         self.q_lo, self.q_hi = lim[:, 0], lim[:, 1]
+        self.pairs_np = self.hand.collision_pairs.cpu().long().numpy().reshape(-1, 2)
+        self.pairs = self.pairs_np
         self.D = self.hand.num_joints
         self.order = tree_order(self.hand)
 
@@ -492,6 +498,7 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         A_rows, b_rows, C_rows, d_rows = [], [], [], []
         eq_viol, in_viol, soft_r, soft_J = [], [], [], []
         w_rows = []
+        G_rows, g_rows = [], []                                 # receding-slack rows (elastic like the equalities)
         for i in range(H):
             Jcf = np.zeros((3, nv))
             Jcf[:, :N] = Jc[i]
@@ -501,8 +508,8 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
                 gap = cw[i] - cr[i] * 0 - (prev.p[i] @ Rs.T + os_)
                 gn = np.linalg.norm(gap)
                 if gn > 1e-9:
-                    C_rows.append(gap / gn @ Jcf)
-                    d_rows.append(approach[i] - gn)
+                    G_rows.append(gap / gn @ Jcf)
+                    g_rows.append(approach[i] - gn)
                     in_viol.append(gn - approach[i])
                 continue
             if not active[i]:
@@ -512,6 +519,10 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
                 b_rows.append(cr[i] - sd_c[i])
                 eq_viol.append(abs(cr[i] - sd_c[i]))
                 w_rows.append(TOUCH_WEIGHT)
+                # and, when elastic mode relaxes Eq. 6, it does so away from the object: the contact's own axis
+                # point keeps the non-penetration bound of the axis samples (which may miss it between samples)
+                C_rows.append(-g_c[i] @ Jcf)
+                d_rows.append(sd_c[i] - cr[i] - min(-st.margin, sd_c[i] - cr[i]))
             else:
                 A_rows.append(g_c[i] @ Jcf)
                 b_rows.append(-sd_c[i])
@@ -557,8 +568,38 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             near = np.flatnonzero(lim_tab < 0.01)
             C_rows.extend(_pad(-Ja[near, 2], nv))
             d_rows.extend(lim_tab[near] - lbt[near])
+        # finger-finger separation (addition (a)): capsule pairs of different fingers within 1 cm keep their axis
+        # distance >= r_a + r_b - margin along the line between their closest axis points; a pair already deeper
+        # may not go deeper
+        if len(ctx.pairs):
+            i0, i1 = ctx.pairs_np[:, 0], ctx.pairs_np[:, 1]
+            a0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_a[i0]) + T[i0, :3, 3]
+            b0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_b[i0]) + T[i0, :3, 3]
+            a1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_a[i1]) + T[i1, :3, 3]
+            b1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_b[i1]) + T[i1, :3, 3]
+            pa, pb = _closest_segment_points(a0, b0, a1, b1)
+            depth = ctx.cap_r[i0] + ctx.cap_r[i1] - np.linalg.norm(pa - pb, axis=-1)
+            near = np.flatnonzero(depth > -0.01)
+            if len(near):
+                la, lb_ = ctx.pairs_np[near, 0], ctx.pairs_np[near, 1]
+                nrm = pa[near] - pb[near]
+                nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
+                pts = np.concatenate([pa[near], pb[near]], 0)
+                lks = np.concatenate([la, lb_])
+                if analytic:
+                    Jf = point_jacobian(ctx.order, ts, lks, pts)
+                else:
+                    loc = np.einsum("pji,pj->pi", T[lks, :3, :3], pts - T[lks, :3, 3])
+                    Jf = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(lks), torch.as_tensor(loc),
+                                             torch.as_tensor(root)[None], wrt_root=True)[0].numpy()
+                m_ = len(near)
+                Jd = np.einsum("pc,pcn->pn", nrm, Jf[:m_] - Jf[m_:])
+                sep = -depth[near]
+                lbf = np.minimum(-st.margin, sep)
+                C_rows.extend(_pad(-Jd, nv))
+                d_rows.extend(sep - lbf)
         # bounds: joint limits and speeds, root speeds, the axis parameter
-        dq_max = st.joint_speed * dt
+        dq_max = st.joint_speed * dt * (1.0 - 1e-9)        # strictly inside: checkers compare with >
         lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
         hi = np.maximum(np.minimum(ctx.q_hi, prev.q + dq_max) - q, 0.0)
         s_lo = np.minimum(np.maximum(0.0, s_prev - s_step) - s, 0.0)
@@ -573,8 +614,10 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         viol = max([0.0] + [float(v) for v in eq_viol] + [float(v) for v in in_viol])
         merit = (float(r @ r) + float(pr @ pr) + float(np.dot(w_rows, eq_viol))
                  + ELASTIC_WEIGHT * sum(max(0.0, v) for v in in_viol))
+        m_app = len(G_rows)
         return dict(r=r, Jr=Jr, pr=pr, Jp=Jp, A=np.array(A_rows).reshape(-1, nv), b=np.array(b_rows), w=np.array(w_rows),
-                    C=np.array(C_rows).reshape(-1, nv), d=np.array(d_rows), vlo=vlo, vhi=vhi, h=h,
+                    C=np.array(G_rows + C_rows).reshape(-1, nv), d=np.array(g_rows + d_rows), m_app=m_app,
+                    vlo=vlo, vhi=vhi, h=h,
                     gap=np.where(movable, sd_c - cr, sd_c),
                     objective=objective, viol=viol, merit=merit)
 
@@ -593,17 +636,19 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         d = np.concatenate([L['d'], hi, -lo])
         dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
         if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities
-            A, b = L['A'], L['b']
-            m = A.shape[0]
-            He = np.zeros((nv + 2 * m, nv + 2 * m))
+            A, b = L['A'], L['b']                         # and on the receding-slack rows (the first m_app of C)
+            m, ma = A.shape[0], L['m_app']
+            ne = nv + 2 * m + ma
+            He = np.zeros((ne, ne))
             He[:nv, :nv] = Hm
-            He[nv:, nv:] = 1e-9 * np.eye(2 * m)
-            ge = np.concatenate([g, L['w'], L['w']])
-            Ae = np.concatenate([A, np.eye(m), -np.eye(m)], 1)
-            Ce = np.zeros((C.shape[0] + 2 * m, nv + 2 * m))
+            He[nv:, nv:] = 1e-9 * np.eye(2 * m + ma)
+            ge = np.concatenate([g, L['w'], L['w'], np.full(ma, ELASTIC_WEIGHT)])
+            Ae = np.concatenate([A, np.eye(m), -np.eye(m), np.zeros((m, ma))], 1)
+            Ce = np.zeros((C.shape[0] + 2 * m + ma, ne))
             Ce[:C.shape[0], :nv] = C
-            Ce[C.shape[0]:, nv:] = -np.eye(2 * m)
-            de = np.concatenate([d, np.zeros(2 * m)])
+            Ce[np.arange(ma), nv + 2 * m + np.arange(ma)] = -1.0
+            Ce[C.shape[0]:, nv:] = -np.eye(2 * m + ma)
+            de = np.concatenate([d, np.zeros(2 * m + ma)])
             dx = dense_qp(He, ge, Ae, b, Ce, de)[0][:nv]
         # the box bounds (joint limits, speeds) hold exactly whatever the subproblem's status: a failed elastic
         # solve may return a step outside them
@@ -643,6 +688,23 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     q, root, _ = x
     return FrameResult(frame=HandFrame(q=q, root=root, h=L['h'], p=None), objective=L['objective'], iterations=it,
                        converged=converged, violation=L['viol'], gap=L['gap'])
+
+
+def _closest_segment_points(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray):
+    """Closest points of segment pairs [p1, q1] and [p2, q2], (P, 3) each (Ericson, Real-Time Collision Detection,
+    5.1.9; degenerate segments are points). Returns (c1 (P, 3), c2 (P, 3))."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = (d1 * d1).sum(-1), (d2 * d2).sum(-1)
+    f, c, b = (d2 * r).sum(-1), (d1 * r).sum(-1), (d1 * d2).sum(-1)
+    eps = 1e-18
+    denom = a * e - b * b
+    s = np.where(denom > eps, np.clip((b * f - c * e) / np.where(denom > eps, denom, 1.0), 0.0, 1.0), 0.0)
+    t = np.where(e > eps, (b * s + f) / np.where(e > eps, e, 1.0), 0.0)
+    s = np.where(t < 0.0, np.clip(-c / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
+    s = np.where(t > 1.0, np.clip((b - c) / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
+    t = np.clip(t, 0.0, 1.0)
+    s = np.where(a > eps, s, 0.0)
+    return p1 + s[:, None] * d1, p2 + t[:, None] * d2
 
 
 def _axis_param(a: np.ndarray, seg: np.ndarray, h: np.ndarray) -> np.ndarray:
