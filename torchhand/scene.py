@@ -519,11 +519,24 @@ def _slerp(q0: torch.Tensor, q1: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 # loading
 
 
+def _builtin_over_dir(name_or_dir, p: Path) -> bool:
+    """A plain built-in scene name that also names a directory without a ``scene.toml`` in the working directory
+    (an output directory named after the scene, ``--out box-turn``) means the built-in scene."""
+    if not (isinstance(name_or_dir, str) and p.is_dir()) or (p / "scene.toml").is_file():
+        return False
+    if any(s in name_or_dir for s in ("/", "\\", os.sep)):
+        return False
+    from .scenes import list_builtin_scenes
+
+    return name_or_dir in list_builtin_scenes()
+
+
 def load_scene(name_or_dir: str | os.PathLike) -> Scene:
     """Load a built-in scene by name or a scene directory (``docs/scene_format.md``), validated.
 
     A value that names an existing directory (or a ``scene.toml`` file) is read from disk; a plain name (no path
-    separator) is looked up among :func:`torchhand.scenes.list_builtin_scenes`.
+    separator) is looked up among :func:`torchhand.scenes.list_builtin_scenes`. A plain built-in name that is also a
+    directory without a ``scene.toml`` (say an output directory named after the scene) is the built-in scene.
 
     Raises:
         UnknownNameError: neither a directory nor a built-in scene name (the message lists the known names).
@@ -535,7 +548,7 @@ def load_scene(name_or_dir: str | os.PathLike) -> Scene:
     if not isinstance(name_or_dir, (str, os.PathLike)):
         raise InputTypeError(f"name_or_dir: expected a str or path, got {type(name_or_dir).__name__}")
     p = Path(name_or_dir)
-    if p.is_dir() or p.is_file():
+    if (p.is_dir() or p.is_file()) and not _builtin_over_dir(name_or_dir, p):
         from .scene_io import load_scene_dir
 
         return load_scene_dir(p.parent if p.is_file() else p)

@@ -558,3 +558,15 @@ def test_external_wrench_bad_input(scenes, tmp_path):
     np.savez(out / "trajectories.npz", **arrays)
     with pytest.raises(FileFormatError, match="missing array.*external_wrench"):
         load_scene(out)
+
+
+def test_builtin_name_over_a_directory_without_scene_toml(tmp_path, monkeypatch):
+    """An output directory named after a built-in scene (``--out box-turn``) does not hide the built-in scene; a
+    real scene directory of that name (with its scene.toml) still wins."""
+    from torchhand.scene import load_scene
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "box-turn").mkdir()
+    assert load_scene("box-turn").name == "box-turn" and load_scene("box-turn").T == 66
+    with pytest.raises(MissingFileError, match="scene.toml"):
+        load_scene("./box-turn")

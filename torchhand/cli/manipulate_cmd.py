@@ -61,7 +61,7 @@ def _grasp_path(scene_arg: str, grasp: str | None) -> Path:
     if grasp is not None:
         return Path(grasp)
     d = Path(scene_arg)
-    if d.is_dir():
+    if d.is_dir() and (d / "scene.toml").is_file():
         return d / "grasp.npz"
     builtin = _builtin_grasp(scene_arg)
     if builtin is not None:
