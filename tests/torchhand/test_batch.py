@@ -188,8 +188,8 @@ def test_options_are_synthesize_flags_with_its_defaults(tmp_path):
     ('[[jobs]]\nscenes = ["box-turn"]\nstrategy = "fast"\n', "strategy"),
     ('[[jobs]]\nscenes = []\n', "scenes: expected a non-empty list"),
     ('[[jobs]]\nseeds = [0]\n', "no 'scenes'"),
-    ('[[jobs]]\nmethod = "capture"\nscenes = ["box-turn"]\n', "method 'capture' is not available"),
-    ('[[jobs]]\nmethod = "manipulate"\nscenes = ["box-turn"]\n', "method 'manipulate' is not available"),
+    ('[[jobs]]\nmethod = "capture"\nscenes = ["box-turn"]\n', "no 'interactions'"),
+    ('[[jobs]]\nmethod = "manipulate"\nscenes = ["box-turn"]\n', "'box-turn' has no packaged grasp"),
     ('[[jobs]]\nmethod = "splice"\nscenes = ["box-turn"]\n', "torchhand splice --body"),
     ('[[jobs]]\nmethod = "dance"\nscenes = ["box-turn"]\n', "unknown method 'dance'"),
     ('[[jobs]]\nscenes = ["no-such-scene"]\n', "'no-such-scene' is neither a built-in scene"),
@@ -232,7 +232,7 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, monk
             "unknown scene": SMALL + '[[jobs]]\nscenes = ["box-turm"]\n',
             "missing hand": SMALL + '[[jobs]]\nscenes = ["box-turn"]\nhands = ["hands/none.xml"]\n',
             "unknown method": FOUR.replace('method = "synthesize"', 'method = "synthesise"'),
-            "future method": FOUR.replace('method = "synthesize"', 'method = "capture"')}.get(case, FOUR)
+            "future method": FOUR.replace('method = "synthesize"', 'method = "splice"')}.get(case, FOUR)
     manifest = _write(tmp_path / "batch.toml", text)
     out = tmp_path / "out"
     extra = {"workers 0": ["--workers", "0"], "threads 0": ["--threads", "0"], "ray missing": ["--ray", "auto"]}
@@ -248,7 +248,7 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, monk
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and err[0].startswith("torchhand: error:"), err
     expected = {"unknown key": "treez", "unknown scene": "box-turm", "missing hand": "none.xml",
-                "unknown method": "synthesise", "future method": "capture", "workers 0": "--workers",
+                "unknown method": "synthesise", "future method": "splice", "workers 0": "--workers",
                 "threads 0": "--threads", "ray missing": "pip install 'torchhand[ray]'",
                 "out is a file": "not a directory", "out not a batch": "not a batch directory"}[case]
     assert expected in err[0]

@@ -1,10 +1,12 @@
 """Batch runs: many jobs from one manifest, resumable and exactly once, on one machine or a Ray cluster
-(``torchhand batch MANIFEST --out DIR``, docs/batch.md).
+(``torchhand batch MANIFEST --out DIR``, docs/batch.md): jobs of ``torchhand synthesize``, ``torchhand manipulate``
+and ``torchhand capture resynthesize``.
 
 ==================== ====================================================================================
 module               what
 ==================== ====================================================================================
-:mod:`.manifest`     ``batch.toml``: parsing, validation, expansion (scenes × seeds × hands), job ids
+:mod:`.manifest`     ``batch.toml``: parsing, validation, expansion (synthesize, manipulate, capture), job ids
+:mod:`.inputs`       every scene, hand, grasp and interaction of a manifest loaded once, before any work
 :mod:`.store`        the batch directory: layout, the journal ``jobs.jsonl``, the lock, exactly-once promotion
 :mod:`.worker`       one attempt of one job, in its own process: the method, then the checker
 :mod:`.runner`       threads per worker, the local process pool, :func:`run_batch`

@@ -1,7 +1,7 @@
 """Ray backend of ``torchhand batch --ray auto|ADDRESS``: the same jobs, the same worker, the same directory.
 
 Each attempt is one Ray task (:func:`ray_attempt`) asking for ``num_cpus = threads`` (and ``num_gpus = 1`` with
-``--device cuda``), with ``max_retries = 0`` so that every failure is recorded here. The task runs the batch
+``--device cuda`` for the methods that run on it, :func:`torchhand.batch.worker.run_device`), with ``max_retries = 0`` so that every failure is recorded here. The task runs the batch
 worker (:mod:`.worker`) as a subprocess on its node, into a temporary directory, and returns the finished result
 as a tar archive with the attempt's log; results stream back with ``ray.wait`` as they finish, and this process
 unpacks each into ``DIR/jobs/.staging/<id>.<n>/`` and promotes it exactly as the local pool does
@@ -112,18 +112,21 @@ def run_ray(layout: Layout, journal: Journal, todo: list[tuple[Job, int]], plan:
             capacity = max(1, int(res.get("CPU", 1) // plan.threads))
             if plan.device == "cuda":
                 capacity = max(1, min(capacity, int(res.get("GPU", 1))))
-        task = ray.remote(ray_attempt).options(num_cpus=plan.threads, num_gpus=1 if plan.device == "cuda" else 0,
-                                               max_retries=0)
+        remote = ray.remote(ray_attempt)
+        tasks = {m: remote.options(num_cpus=plan.threads, max_retries=0,
+                                   num_gpus=1 if worker.run_device(m, plan.device) == "cuda" else 0)
+                 for m in {job.method for job, _ in todo}}
         queue = collections.deque(todo)
         inflight: dict = {}
         try:
             while queue or inflight:
                 while queue and len(inflight) < capacity:
                     job, n = queue.popleft()
-                    ref = task.remote(job.argv(), plan.threads, plan.device)
+                    ref = tasks[job.method].remote(job.argv(), plan.threads, plan.device)
                     inflight[ref] = (job, n, time.monotonic())
                     record = journal.append("start", job=job.id, attempt=n, threads=plan.threads,
-                                            device=plan.device, backend="ray", ray_address=plan.ray_address)
+                                            device=worker.run_device(job.method, plan.device), backend="ray",
+                                            ray_address=plan.ray_address)
                     tracker.event("start", job.id, record)
                 ready, _ = ray.wait(list(inflight), num_returns=1, timeout=1.0)
                 for ref in ready:

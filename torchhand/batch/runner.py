@@ -100,7 +100,8 @@ class Counts:
 @dataclass(frozen=True)
 class BatchOutcome:
     """What a run did. finished: jobs finished in this run; already: finished before it; failed: ids whose last
-    attempt of this run failed; pending: jobs not run (interrupted); summary: files written."""
+    attempt of this run failed; pending: jobs not run (interrupted); summary: files written; unsuitable: the jobs of
+    ``finished`` whose answer is "grasp unsuitable" (manipulate)."""
 
     total: int
     already: int
@@ -110,6 +111,7 @@ class BatchOutcome:
     plan: RunPlan
     summary: tuple[Path, ...]
     interrupted: bool = False
+    unsuitable: tuple[str, ...] = ()
 
 
 class _Tracker:
@@ -121,6 +123,7 @@ class _Tracker:
         self.notify = notify or (lambda *a: None)
         self.finished: list[str] = []
         self.failed: list[str] = []
+        self.unsuitable: list[str] = []
 
     def event(self, kind: str, job_id: str, record: dict | None = None) -> None:
         c = self.counts
@@ -132,6 +135,8 @@ class _Tracker:
             if kind in ("finish", "discard"):          # discard: the job had been finished meanwhile
                 done += 1
                 self.finished.append(job_id)
+                if (record or {}).get("outcome") == "unsuitable":
+                    self.unsuitable.append(job_id)
             else:
                 failed += 1
                 self.failed.append(job_id)
@@ -196,7 +201,8 @@ def _launch(layout: Layout, journal: Journal, job: Job, n: int, plan: RunPlan, s
         t0 = time.monotonic()
         proc = subprocess.Popen(worker.command(job.argv(), stage, plan.threads, plan.device), stdout=fh,
                                 stderr=subprocess.STDOUT, cwd=layout.logs, env=env, **worker.popen_kwargs())
-    record = journal.append("start", job=job.id, attempt=n, pid=proc.pid, threads=plan.threads, device=plan.device,
+    record = journal.append("start", job=job.id, attempt=n, pid=proc.pid, threads=plan.threads,
+                            device=worker.run_device(job.method, plan.device),
                             backend="local", log=str(log.relative_to(layout.root)))
     tracker.event("start", job.id, record)
     return job, n, proc, t0
@@ -238,6 +244,7 @@ def run_batch(manifest: Manifest, out, plan: RunPlan, *, update: bool = False, n
         done = set(tracker.finished) | set(tracker.failed)
         return BatchOutcome(total=len(manifest.jobs), already=len(finished), finished=tuple(tracker.finished),
                             failed=tuple(tracker.failed), pending=tuple(j.id for j, _ in todo if j.id not in done),
-                            plan=plan, summary=tuple(paths), interrupted=interrupted)
+                            plan=plan, summary=tuple(paths), interrupted=interrupted,
+                            unsuitable=tuple(tracker.unsuitable))
     finally:
         lock.close()

@@ -7,13 +7,15 @@
     DIR/jobs.jsonl            the journal: one JSON object a line (start, finish, fail, discard, batch), appended,
                               flushed and fsynced line by line
     DIR/jobs/<id>/            a finished job: a complete result directory (docs/result_format.md) plus
-                              check.json (the checker's report) and job.json (the job, attempt, threads, device)
+                              check.json (the checker's report) and job.json (the job, attempt, threads, device);
+                              or, for a manipulate job whose grasp is unsuitable, unsuitable.json (and the partial
+                              result with its check.json, when frames were done before the grasp failed)
     DIR/jobs/.staging/<id>.<n>/   attempt n of a job being written
     DIR/logs/<id>.<n>.log     stdout and stderr of attempt n
     DIR/.batch.lock           held (flock) by the running batch process
 
 Exactly once: an attempt writes only into its own staging directory; a finished attempt (``stats.json`` says
-``"complete": true`` and ``check.json`` is there) is moved to ``DIR/jobs/<id>/`` with one ``os.rename`` (atomic on
+``"complete": true`` and ``check.json`` is there, or the worker wrote ``unsuitable.json``, :func:`outcome`) is moved to ``DIR/jobs/<id>/`` with one ``os.rename`` (atomic on
 one filesystem), and only then is its ``finish`` line written. Only the process holding the batch lock promotes,
 and it never promotes over an existing ``DIR/jobs/<id>/``. A killed attempt leaves at most a staging directory,
 which the next run removes with a ``discard`` line (or promotes, when the attempt had completed before the batch
@@ -37,8 +39,9 @@ from pathlib import Path
 from .._atomic import atomic_json, atomic_text, writable_dir
 from ..errors import InputValueError
 from .manifest import Job, Manifest
+from .worker import UNSUITABLE, run_device
 
-__all__ = ["BATCH_FORMAT", "Layout", "Journal", "validate_out", "open_batch", "recover", "finish_attempt",
+__all__ = ["BATCH_FORMAT", "outcome", "Layout", "Journal", "validate_out", "open_batch", "recover", "finish_attempt",
            "log_busy", "read_json", "now"]
 
 BATCH_FORMAT = 1
@@ -134,8 +137,20 @@ def read_json(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def outcome(result_dir: Path) -> str:
+    """What a job's (or an attempt's) directory holds: ``"complete"`` (``stats.json`` says ``"complete": true``),
+    ``"unsuitable"`` (the worker's ``unsuitable.json``: a manipulate job whose grasp cannot realise the motion, a
+    finished answer) or ``""`` (nothing finished)."""
+    if read_json(Path(result_dir) / UNSUITABLE) is not None:
+        return "unsuitable"
+    stats = read_json(Path(result_dir) / "stats.json")
+    return "complete" if stats is not None and stats.get("complete") is True else ""
+
+
 def _complete(result_dir: Path) -> str:
     """"" when ``result_dir`` holds a finished attempt, else why not."""
+    if read_json(result_dir / UNSUITABLE) is not None:
+        return ""                                                # written last, after any check.json
     stats = read_json(result_dir / "stats.json")
     if stats is None:
         return "no readable stats.json"
@@ -351,11 +366,10 @@ def _close_dangling(layout: Layout, journal: Journal, starts: dict, left: set) -
 
 
 def _complete_result(result_dir: Path) -> str:
-    """"" when ``result_dir`` is a finished job's directory (``stats.json`` complete), else why not."""
+    """"" when ``result_dir`` is a finished job's directory (:func:`outcome`), else why not."""
     if not result_dir.is_dir():
         return "missing"
-    stats = read_json(result_dir / "stats.json")
-    return "" if stats is not None and stats.get("complete") is True else "incomplete"
+    return "" if outcome(result_dir) else "incomplete"
 
 
 def finish_attempt(layout: Layout, journal: Journal, job: Job, attempt: int, *, returncode: int | None,
@@ -377,14 +391,19 @@ def finish_attempt(layout: Layout, journal: Journal, job: Job, attempt: int, *, 
                               **({"staging": "removed"} if existed else {}))
     stats = read_json(stage / "stats.json") or {}
     check = read_json(stage / "check.json") or {}
-    info = {"id": job.id, "attempt": attempt, **(meta or {}), "finished": now(),
+    result = outcome(stage)
+    meta = dict(meta or {})
+    if meta.get("device") is not None:
+        meta["device"] = run_device(job.method, meta["device"])
+    info = {"id": job.id, "attempt": attempt, **meta, "finished": now(), "outcome": result,
             "log": str(layout.log(job.id, attempt).relative_to(layout.root)), "job": job.to_dict()}
     atomic_json(stage / "job.json", info)
     os.rename(stage, layout.job_dir(job.id))                     # atomic: the whole result appears at once
     _fsync_dir(layout.jobs)
-    return journal.append("finish", job=job.id, attempt=attempt, solutions=stats.get("solutions"),
+    return journal.append("finish", job=job.id, attempt=attempt, solutions=stats.get("solutions", 0),
                           check="none" if not check.get("solutions") else "pass" if check.get("passed") else "fail",
-                          seconds=(meta or {}).get("seconds"), **({"recovered": True} if recovered else {}))
+                          seconds=meta.get("seconds"), **({"outcome": result} if result != "complete" else {}),
+                          **({"recovered": True} if recovered else {}))
 
 
 def _fsync_dir(path: Path) -> None:

@@ -1,11 +1,18 @@
 """One attempt of one batch job, in its own process: ``python -m torchhand.batch --stage DIR --threads K --device D
 -- synthesize SCENE ...`` (``torchhand/batch/__main__.py`` calls :func:`main`).
 
-Runs the ``torchhand`` command (``torchhand.cli.main``) with ``--out DIR --threads K --device D --no-progress``
-added, and, when its ``stats.json`` says ``"complete": true``, the independent checker
-(:func:`torchhand.check.check_result`) on the result, whose report it writes to ``DIR/check.json`` (atomically,
-last). Exit code 0 then, whether or not solutions were found and whatever the checker's verdict; otherwise the
-command's own code (2: bad input, the error line on stderr) or 3 (the run did not complete).
+Runs the ``torchhand`` command (``torchhand.cli.main``) with ``--out DIR --threads K`` added, and those of
+``--device D`` and ``--no-progress`` that the command has (:data:`RUN_FLAGS`), then, when its ``stats.json`` says
+``"complete": true``, the independent checker (:func:`torchhand.check.check_result`) on the result, whose report
+it writes to ``DIR/check.json`` (atomically, last). Exit code 0 then, whether or not solutions were found and
+whatever the checker's verdict (a ``capture`` whose rollouts all stopped at an unsolved LCP exits 1 with a complete
+result of no solution: that is its answer, not a failure); otherwise the command's own code (2: bad input, the
+error line on stderr) or 3 (the run did not complete).
+
+A ``manipulate`` that exits 1 found the grasp unsuitable for the motion (docs/manipulation.md): a deterministic
+answer, so the attempt is finished, not failed. The worker checks the partial result when there is one
+(``check.json``) and then writes ``DIR/unsuitable.json`` (last): ``status: "grasp_unsuitable"``, the ``frame``,
+``frames_done`` and the command's ``message``.
 
 The batch process runs this as a subprocess so that a crash or ``kill -9`` of one job cannot take the batch down,
 and on Linux asks the kernel to kill it when the batch process dies (:func:`popen_kwargs`), so that no orphan keeps
@@ -15,13 +22,28 @@ writing after a ``kill -9`` of the batch.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import signal
 import sys
 from pathlib import Path
 
-__all__ = ["command", "environment", "popen_kwargs", "describe_exit", "main"]
+__all__ = ["RUN_FLAGS", "UNSUITABLE", "command", "describe_exit", "environment", "main", "popen_kwargs",
+           "run_device"]
+
+RUN_FLAGS = {"synthesize": ("--device", "--no-progress"), "manipulate": ("--no-progress",), "capture": ()}
+"""Method -> the run flags its command has besides ``--out`` and ``--threads`` (a test holds them to the CLI)."""
+
+UNSUITABLE = "unsuitable.json"
+"""The file that marks a finished attempt whose answer is "grasp unsuitable" (module docstring)."""
+
+
+def run_device(method: str, device: str) -> str:
+    """The device a job of ``method`` runs on when the batch asks for ``device``: commands without ``--device``
+    (manipulate, capture) run on the CPU."""
+    return device if "--device" in RUN_FLAGS.get(method, ("--device",)) else "cpu"
 
 
 def command(argv: list[str], stage: Path, threads: int, device: str) -> list[str]:
@@ -88,25 +110,81 @@ def main(argv: list[str] | None = None) -> int:
     from ..cli import main as cli
 
     stage = Path(a.stage)
-    print(f"worker pid {os.getpid()}: torchhand {' '.join(cmd)} --out {stage} --threads {a.threads} "
-          f"--device {a.device}", flush=True)
-    rc = cli(cmd + ["--out", str(stage), "--threads", str(a.threads), "--device", a.device, "--no-progress"])
+    method = cmd[0] if cmd else ""
+    flags = RUN_FLAGS.get(method, ("--device", "--no-progress"))
+    run = ["--out", str(stage), "--threads", str(a.threads)] + (["--device", a.device] if "--device" in flags else [])
+    run += ["--no-progress"] if "--no-progress" in flags else []
+    print(f"worker pid {os.getpid()}: torchhand {' '.join(cmd + run)}", flush=True)
+    tee = _Tee(sys.stderr)
+    with contextlib.redirect_stderr(tee):
+        rc = cli(cmd + run)
     sys.stdout.flush()
     try:
         stats = json.loads((stage / "stats.json").read_text())
     except (OSError, ValueError):
         stats = {}
+    said = stats.get("status") == "grasp_unsuitable" if stats else any("grasp unsuitable" in ln for ln in tee.lines)
+    if method == "manipulate" and rc == 1 and stats.get("complete") is not True and said:
+        return _unsuitable(stage, stats, tee.lines)
     if stats.get("complete") is not True:
         print(f"torchhand batch worker: error: the run did not complete (exit code {rc})", file=sys.stderr)
         return rc if rc not in (0, 1) else 3
+    _check(stage)
+    return 0
+
+
+def _check(stage: Path) -> None:
+    """The checker's report on the result in ``stage``, written to ``check.json``."""
     from .._atomic import atomic_json
     from ..check import check_result
 
     report = check_result(stage)
     atomic_json(stage / "check.json", report.to_dict())
     print(f"check: {'PASS' if report.passed else 'FAIL'}: {sum(s.passed for s in report.solutions)} of "
-          f"{len(report.solutions)} solutions pass", flush=True)
+          f"{len(report.solutions)} solutions pass{'' if report.complete else ' (partial result)'}", flush=True)
+
+
+def _unsuitable(stage: Path, stats: dict, lines) -> int:
+    """Record a manipulate attempt that found the grasp unsuitable as finished: check the partial result (if any),
+    then write ``unsuitable.json`` last."""
+    import re
+
+    from .._atomic import atomic_json
+
+    said = [ln for ln in lines if "grasp unsuitable" in ln]
+    message = (said or [""])[-1].strip()
+    message = message.split(": ", 1)[1] if message.startswith("torchhand:") else message
+    message = re.sub(r";\s*(nothing written|frames \S+ written to .*)$", "", message)   # where: the staging dir
+    info = stats.get("unsuitable") or {}
+    m = re.search(r"at frame (\d+)", message)
+    frame = info.get("frame", int(m[1]) if m else None)
+    if stats:
+        _check(stage)
+    stage.mkdir(parents=True, exist_ok=True)
+    atomic_json(stage / UNSUITABLE, {"status": "grasp_unsuitable", "frame": frame,
+                                     "frames_done": stats.get("T", 0) if stats else 0, "message": message,
+                                     "partial_result": bool(stats)})
+    print(f"grasp unsuitable at frame {frame}: recorded as the job's answer (not retried)", flush=True)
     return 0
+
+
+class _Tee(io.TextIOBase):
+    """A text stream that writes through to ``target`` and keeps the last 100 complete lines written."""
+
+    def __init__(self, target):
+        import collections
+
+        self.target, self.lines, self._part = target, collections.deque(maxlen=100), ""
+
+    def write(self, text: str) -> int:
+        self.target.write(text)
+        parts = (self._part + text).split("\n")
+        self.lines.extend(parts[:-1])
+        self._part = parts[-1]
+        return len(text)
+
+    def flush(self) -> None:
+        self.target.flush()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,15 +1,17 @@
 """``torchhand batch MANIFEST --out DIR``: many jobs from one manifest, resumable and exactly once, on a local
 process pool or a Ray cluster (docs/batch.md).
 
-MANIFEST (batch.toml) has a [defaults] table and [[jobs]] tables whose scenes, seeds and hands lists expand as a
-product; options are torchhand synthesize's flags (max_nodes = 400 is --max-nodes 400). Each job writes a result
+MANIFEST (batch.toml) has a [defaults] table and [[jobs]] tables naming a method (synthesize, manipulate,
+capture) whose lists expand as a product (scenes x seeds x hands; scenes x grasps; interactions x scenes); options
+are the method's flags (max_nodes = 400 is --max-nodes 400). Each job writes a result
 directory (docs/result_format.md) atomically to DIR/jobs/<id>/, with the checker's report (check.json); DIR/jobs.jsonl
 records every start, finish and failure; DIR/summary.csv, summary.md and summary.png are written at the end of
 every run. Run the same command again after an interruption (Ctrl-C, kill -9, a crash, a reboot): finished jobs
 are kept, the others run again from the start, no job is finished twice. A job that fails is recorded and the batch
 goes on.
 
-Exit code 0 when every job of the manifest is finished, 1 when some failed (run again to retry them), 2 for bad
+Exit code 0 when every job of the manifest is finished (a manipulate job whose grasp is unsuitable is finished:
+that is its answer), 1 when some failed (run again to retry them), 2 for bad
 input (nothing is written), 130 when interrupted.
 """
 
@@ -103,7 +105,8 @@ def run(args) -> int:
         if kind == "finish":
             write(f"finished {job_id}: {record.get('solutions')} solution(s), check {record.get('check')}"
                   + (f", {record['seconds']:.1f} s" if record.get("seconds") is not None else "")
-                  + (" (recovered)" if record.get("recovered") else ""))
+                  + (" (recovered)" if record.get("recovered") else "")
+                  + (" (grasp unsuitable: not retried)" if record.get("outcome") == "unsuitable" else ""))
         elif kind == "fail":
             write(f"FAILED {job_id} (attempt {record.get('attempt')}): {record.get('error')} "
                   f"[{record.get('log', '')}]")
