@@ -85,17 +85,19 @@ def ruiz(Q: torch.Tensor, q: torch.Tensor, C: torch.Tensor, iters: int):
     B, n = q.shape
     D = q.new_ones(B, n)
     E = q.new_ones(B, C.shape[1])
-    Qs, Cs = Q, C
+    # |Q D D| = |Q| D D exactly (D, E > 0; rounding is sign-symmetric): the absolute values are taken once.
+    Qa, Ca = Q.abs(), C.abs()
+    Qs, Cs = Qa, Ca
     for _ in range(iters):
-        col = torch.maximum(Qs.abs().amax(1), Cs.abs().amax(1) if Cs.shape[1] else Qs.new_zeros(B, n))
-        row = Cs.abs().amax(2)
+        col = torch.maximum(Qs.amax(1), Cs.amax(1) if Cs.shape[1] else Qs.new_zeros(B, n))
+        row = Cs.amax(2)
         dc = torch.where(col > 1e-4, col, torch.ones_like(col)).rsqrt().clamp(1e-4, 1e4)
         dr = torch.where(row > 1e-4, row, torch.ones_like(row)).rsqrt().clamp(1e-4, 1e4)
         D, E = D * dc, E * dr
-        Qs = Q * D.unsqueeze(2) * D.unsqueeze(1)
-        Cs = C * E.unsqueeze(2) * D.unsqueeze(1)
+        Qs = Qa * D.unsqueeze(2) * D.unsqueeze(1)
+        Cs = Ca * E.unsqueeze(2) * D.unsqueeze(1)
     qs = q * D
-    scale = torch.maximum(Qs.abs().amax(1).mean(1), qs.abs().amax(1))
+    scale = torch.maximum(Qs.amax(1).mean(1), qs.abs().amax(1))
     c = torch.where(scale > 1e-4, scale, torch.ones_like(scale)).reciprocal().clamp(1e-4, 1e4)
     return D, E, c
 
@@ -126,9 +128,12 @@ def _factor(P: _Scaled, rho: torch.Tensor, sigma: float) -> torch.Tensor:
     return torch.cholesky_inverse(L).to(P.q.dtype)
 
 
-def _residuals(P: _Scaled, x, z, y):
-    """Unscaled OSQP residuals and their reference sizes. Returns (r_p, r_d, size_p, size_d), each (B,)."""
-    Cx, Qx, Cty = _mv(P.C, x), _mv(P.Q, x), _mtv(P.C, y)
+def _residuals(P: _Scaled, x, z, y, Cx=None, Qx=None):
+    """Unscaled OSQP residuals and their reference sizes. Returns (r_p, r_d, size_p, size_d), each (B,).
+    Cx, Qx: the products C x and Q x when the caller has them (B, m), (B, n)."""
+    Cx = _mv(P.C, x) if Cx is None else Cx
+    Qx = _mv(P.Q, x) if Qx is None else Qx
+    Cty = _mtv(P.C, y)
     Einv, Dinv, cinv = 1 / P.E, 1 / P.D, (1 / P.c).unsqueeze(-1)
     r_p = _amax((Cx - z) * Einv)
     r_d = _amax((Qx + P.q + Cty) * Dinv * cinv)
@@ -137,7 +142,7 @@ def _residuals(P: _Scaled, x, z, y):
     return r_p, r_d, size_p, size_d
 
 
-def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d):
+def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d, Cx=None, Qx=None):
     """Complementarity and multiplier signs at (x, y), unscaled, per problem (B,) bool.
 
     With slacks s_u = u - Cx and s_l = Cx - l (inf where the bound is absent) and the multiplier's size in gradient
@@ -147,10 +152,11 @@ def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d):
     row without upper bound) has infinite slack and fails. And the complementarity gap
     |sum_i y_i^+ s_u,i + y_i^- s_l,i| (the IPM's lam^T (h - G z)) must be below tol (1 + the largest of
     |x^T Q x|, |q^T x|, sum_i |y_i (Cx)_i|, sum_i |y_i b_i|), b_i the bound y_i pushes on. Equality rows
-    (l = u) are exempt. The residual tests alone miss a point whose lam and slack are both ~sqrt(mu)."""
+    (l = u) are exempt. The residual tests alone miss a point whose lam and slack are both ~sqrt(mu).
+    Cx, Qx: the products C x and Q x when the caller has them."""
     Einv = 1 / P.E
     cinv = (1 / P.c).unsqueeze(-1)
-    Cx, u, l = _mv(P.C, x) * Einv, P.u * Einv, P.l * Einv
+    Cx, u, l = (_mv(P.C, x) if Cx is None else Cx) * Einv, P.u * Einv, P.l * Einv
     yu = y * P.E * cinv
     rown = (P.C.abs() / P.D.unsqueeze(1)).amax(-1) * Einv if P.C.shape[2] else torch.zeros_like(u)
     pos, neg = yu > 0, yu < 0
@@ -163,7 +169,7 @@ def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d):
     ay = yu.abs()
     fin = torch.isfinite(slack) & ~P.eq
     gap = torch.where(fin, ay * slack, torch.zeros_like(u)).sum(-1)
-    Qx = _mv(P.Q, x)
+    Qx = _mv(P.Q, x) if Qx is None else Qx
     scale = torch.maximum(torch.maximum((x * Qx).sum(-1).abs(), (P.q * x).sum(-1).abs()) * cinv.squeeze(-1),
                           torch.maximum(torch.where(fin, ay * Cx.abs(), torch.zeros_like(u)).sum(-1),
                                         torch.where(fin, ay * bound.abs(), torch.zeros_like(u)).sum(-1)))
@@ -172,8 +178,9 @@ def _complementary(P: _Scaled, x, y, tol: float, s_p, s_d):
 
 def _converged(P: _Scaled, x, z, y, tol: float):
     """The converged test: OSQP's residual test plus :func:`_complementary`, per problem (B,) bool."""
-    r_p, r_d, s_p, s_d = _residuals(P, x, z, y)
-    return (r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d)) & _complementary(P, x, y, tol, s_p, s_d)
+    Cx, Qx = _mv(P.C, x), _mv(P.Q, x)
+    r_p, r_d, s_p, s_d = _residuals(P, x, z, y, Cx, Qx)
+    return (r_p <= tol * (1 + s_p)) & (r_d <= tol * (1 + s_d)) & _complementary(P, x, y, tol, s_p, s_d, Cx, Qx)
 
 
 def _active(P: _Scaled, z, y):
@@ -331,11 +338,14 @@ def admm(Q, q, C, l, u, x0, y0, s: AdmmSettings) -> AdmmOutput:
                 tried = tried | fresh
         # Certificate candidates: the last increment and the mean increment over the check interval (less
         # rounding noise once y has grown large).
-        pinf1, cert1 = _primal_infeasible(P, y - y_old, s.eps_inf)
-        pinf2, cert2 = _primal_infeasible(P, y - y_start, s.eps_inf)
-        pinf = (pinf1 | pinf2) & ~conv
-        cert = torch.where(pinf1.unsqueeze(-1), cert1, cert2)
-        unb = (_unbounded(P, x - x_old, s.eps_inf) | _unbounded(P, x - x_start, s.eps_inf)) & ~conv & ~pinf
+        if bool(conv.all()):                                   # host sync: once per check; no certificate needed
+            pinf, unb, cert = torch.zeros_like(conv), torch.zeros_like(conv), y
+        else:
+            pinf1, cert1 = _primal_infeasible(P, y - y_old, s.eps_inf)
+            pinf2, cert2 = _primal_infeasible(P, y - y_start, s.eps_inf)
+            pinf = (pinf1 | pinf2) & ~conv
+            cert = torch.where(pinf1.unsqueeze(-1), cert1, cert2)
+            unb = (_unbounded(P, x - x_old, s.eps_inf) | _unbounded(P, x - x_start, s.eps_inf)) & ~conv & ~pinf
         done = conv | pinf | unb
         st = torch.where(conv, _CONVERGED, torch.where(pinf, _INFEASIBLE, torch.where(unb, _UNBOUNDED,
                                                                                    _MAX_ITERATIONS)))

@@ -440,28 +440,48 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     """Solve Eq. 4 for the window t = k .. k+n-1 with the current contacts (no additions).
 
     f_prev: B^{k-1} lambda^{k-1} per slot, (M, 3), newtons (M = hand contacts + table slots).
-    z_prev: the previous window's solution, shifted by one frame into a warm start when its slots are the same.
+    z_prev: the previous window's solution (z, lam, nu) as returned here, shifted by one frame into a warm start
+    (primal and multipliers, :func:`_shift_warm`) when its slots are the same.
     method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started when possible; the
     default), "auto" (the kernel's choice: ADMM with a warm start, the interior point without) or "ipm" (the
     interior point, cold; the fallback for thin feasible sets, where ADMM stalls or declares infeasibility too
     early).
-    Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args, z).
+    Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args,
+    the solution (z (4 M n,), lam (5 M n,), nu (6 n,)) for the next window's warm start).
     """
     args = _window_arrays(c, geo, k, n, settings)
     qp = assemble_window_qp(f_prev=torch.as_tensor(f_prev, dtype=torch.float64)[None], **args)
     M = args["points"].shape[2]
-    warm = None
-    if z_prev is not None and z_prev.shape[0] in (4 * M * n, 4 * M * (n + 1)):     # same slots: shift one frame
-        z_prev = torch.as_tensor(z_prev)[4 * M:]
-        warm = (torch.cat([z_prev, z_prev[-4 * M:]]) if z_prev.shape[0] < 4 * M * n else z_prev)[None], None, None
-    warm = warm if method != "ipm" else None
+    warm = _shift_warm(z_prev, n, M) if method != "ipm" else None
     res = solve_convex_qp(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm, method=method)
     status = int(res.status[0])
     obj = float(res.objective[0] + qp.offset[0])
     if records is not None:
         records.append(WindowRecord(frame=k, qp=qp, objective=float(res.objective[0]), status=status))
     lam = res.z[0].reshape(n, M, 4).clamp_min(0).numpy()
-    return lam, qp.basis[0].numpy(), status, obj, args, res.z[0].numpy()
+    return lam, qp.basis[0].numpy(), status, obj, args, (res.z[0].numpy(), res.lam[0].numpy(), res.nu[0].numpy())
+
+
+def _shift_warm(z_prev, n: int, M: int):
+    """The previous window's solution (z (n' 4 M,), lam (n' 5 M,), nu (n' 6,)), n' = n or n + 1, shifted by one
+    frame into a warm start of window k's QP (B = 1): its frames k .. k+n'-2, the last one repeated when n' = n
+    (the window did not shorten). Rows of :func:`~torchhand.kernels.force_plan.assemble_window_qp`: lam is
+    (-lambda <= 0 per frame, then n^T B lambda <= f_max per frame), nu is Eq. 1 per frame. None when the slots
+    changed (another M) or there is no previous window."""
+    if z_prev is None:
+        return None
+    z, lam, nu = z_prev
+    n_old = z.shape[0] // (4 * M) if M else 0
+    if z.shape[0] != 4 * M * n_old or n_old not in (n, n + 1) or lam.shape[0] != 5 * M * n_old \
+            or nu.shape[0] != 6 * n_old:
+        return None
+
+    def shift(v, per):                          # drop frame k-1; repeat the last frame when the window kept its n
+        v = torch.as_tensor(v, dtype=torch.float64)
+        return torch.cat([v[per:], v[-per:]]) if n_old == n else v[per:]
+
+    lam_b, lam_f = lam[:4 * M * n_old], lam[4 * M * n_old:]
+    return (shift(z, 4 * M)[None], torch.cat([shift(lam_b, 4 * M), shift(lam_f, M)])[None], shift(nu, 6)[None])
 
 
 def _frame_feasible(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings,
