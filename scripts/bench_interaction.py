@@ -30,8 +30,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from _timing import machine, print_table, time_fn, write_json  # noqa: E402
 
-from tests.torchhand.test_step import comb_scene, pinch_scene, run  # noqa: E402
-from torchhand._tree import tree_to  # noqa: E402
+from tests.torchhand.test_step import comb_scene, pinch_scene, run, scene_to  # noqa: E402
 from torchhand.interaction._contacts import find_contacts  # noqa: E402
 from torchhand.interaction.step import quasi_static_step  # noqa: E402
 
@@ -46,14 +45,7 @@ def _case(scene: str, B: int, solver: str, device: str = "cpu", **options):
     else:
         hand, state, C, obj, settings, ref = pinch_scene(B, "lemke")
         env = None
-    if device != "cpu":
-        hand, state, C = hand.to(device), tree_to(state, device), C.to(device)
-        if obj is not None:
-            obj = replace(obj, sdf=obj.sdf.to(device), support=None if obj.support is None else obj.support.to(device))
-        ref_cpu = ref
-
-        def ref(k, _ref=ref_cpu):
-            return _ref(k).to(device)
+    hand, state, C, obj, ref = scene_to(device, hand, state, C, obj, ref)
     settings = replace(settings, solver=solver, **options)
     state, _ = run(state, hand, C, ref, 12, obj=obj, env=env, settings=settings)
     target = ref(13)

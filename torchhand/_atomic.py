@@ -52,3 +52,28 @@ def writable_dir(out: Path) -> Path:
     except OSError as err:
         raise InputValueError(f"--out {out}: cannot write there ({err.strerror or err})") from None
     return out
+
+
+def claim_output_dir(out, is_ours, what: str, overwrite: bool) -> tuple[Path, list[Path]]:
+    """Check ``--out`` before any work: it must be new, empty, or hold only an earlier output (``is_ours(path)``
+    true for every entry), and that only with ``overwrite``. Nothing is created or removed here.
+
+    what: the earlier output's name in messages ("estimate", "inferred interaction")
+    returns: (out, the entries of the earlier output); raises InputValueError naming ``--out``
+    """
+    from .errors import InputValueError
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputValueError(f"--out {out}: exists and is not a directory")
+    if not out.is_dir():
+        return out, []
+    entries = list(out.iterdir())
+    ours = [p for p in entries if is_ours(p)]
+    foreign = sorted(p.name for p in entries if not is_ours(p))
+    if foreign:
+        raise InputValueError(f"--out {out}: not empty and not an earlier {what} (holds {foreign[0]!r}"
+                              f"{' and more' if len(foreign) > 1 else ''}); choose a new or empty directory")
+    if ours and not overwrite:
+        raise InputValueError(f"--out {out}: holds an earlier {what}; pass --overwrite to replace it")
+    return out, ours

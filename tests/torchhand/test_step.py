@@ -135,6 +135,18 @@ def comb_scene(B: int = 1, solver: str = "lemke", fingers: int = 5):
     return hand, state, C, env, settings, reference
 
 
+def scene_to(device, hand, state, C, obj, reference):
+    """The builders' CPU scene on ``device``: hand, state, compliance, the object's grid and the reference."""
+    from torchhand._tree import tree_to
+
+    if device == "cpu":
+        return hand, state, C, obj, reference
+    if obj is not None:
+        obj = replace(obj, sdf=obj.sdf.to(device), support=None if obj.support is None else obj.support.to(device))
+    return (hand.to(device), tree_to(state, device), C.to(device), obj,
+            lambda k: reference(k).to(device))
+
+
 def run(state, hand, C, reference, steps, obj=None, env=None, settings=StepSettings(), root_r=None):
     """Steps 1 .. steps; returns the final state and the list of reports."""
     reports = []
@@ -537,9 +549,8 @@ def test_lever_float32():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA not available")
 @pytest.mark.parametrize("scene", ["comb", "pinch"])
 def test_batched_step_cuda_matches_cpu(scene):
-    """Batched rollouts (B = 6, 12 steps, PGS with Lemke for the stragglers) on the GPU give the CPU's forces and configurations (float64)."""
-    from torchhand._tree import tree_to
-
+    """Batched rollouts (B = 6, 12 steps, PGS with Lemke for the stragglers) on the GPU give the CPU's forces and
+    configurations (float64)."""
     out = {}
     for device in ("cpu", "cuda"):
         if scene == "comb":
@@ -549,11 +560,7 @@ def test_batched_step_cuda_matches_cpu(scene):
             hand, state, C, obj, settings, ref = pinch_scene(6, "auto")
             env = None
         settings = replace(settings, pgs_tol=1e-9, pgs_max_iters=1000)
-        if device == "cuda":
-            hand, state, C = hand.to(device), tree_to(state, device), C.to(device)
-            if obj is not None:
-                obj = replace(obj, sdf=obj.sdf.to(device))
-            ref = (lambda r: (lambda k: r(k).to(device)))(ref)
+        hand, state, C, obj, ref = scene_to(device, hand, state, C, obj, ref)
         state, reports = run(state, hand, C, ref, 12, obj=obj, env=env, settings=settings)
         assert all(bool((rep.status == CONVERGED).all()) for rep in reports)
         out[device] = state

@@ -37,17 +37,17 @@ Units: metres, seconds, radians, newtons; compliance rad/(N m), root linear m/N.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import shutil
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .._atomic import atomic_bytes, atomic_json, writable_dir
+from .._atomic import atomic_bytes, atomic_json, claim_output_dir, writable_dir
 from ..errors import InputValueError
 from .capture import Capture, save_capture
 from .compliance import PRESETS, default_compliance, generalized_names
@@ -358,19 +358,7 @@ def prepare_inferred_dir(out, overwrite: bool = False) -> Path:
     raises: InputValueError naming ``--out`` when it is a file, holds other files, holds an earlier output and
         ``overwrite`` is not set, or cannot be written
     """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputValueError(f"--out {out}: exists and is not a directory")
-    if out.is_dir():
-        entries = [p.name for p in out.iterdir()]
-        foreign = sorted(n for n in entries if n not in OUTPUT_NAMES)
-        if foreign:
-            raise InputValueError(f"--out {out}: not empty and not an earlier inferred interaction (holds "
-                                  f"{foreign[0]!r}{' and more' if len(foreign) > 1 else ''}); choose a new or empty "
-                                  f"directory")
-        if entries and not overwrite:
-            raise InputValueError(f"--out {out}: holds an earlier inferred interaction; pass --overwrite to replace "
-                                  f"it")
+    claim_output_dir(out, lambda p: p.name in OUTPUT_NAMES, "inferred interaction", overwrite)
     return writable_dir(out)
 
 

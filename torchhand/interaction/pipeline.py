@@ -205,26 +205,16 @@ def prepare_output_dir(out, overwrite: bool = False) -> Path:
     """
     import sys
 
-    from .._atomic import writable_dir
+    from .._atomic import claim_output_dir, writable_dir
 
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputValueError(f"--out {out}: exists and is not a directory")
-    if out.is_dir():
-        entries = list(out.iterdir())
-        ours = [p for p in entries
-                if p.name in OUTPUT_FILES or (p.name.startswith(_OUTPUT_PREFIX) and p.suffix == ".png")]
-        foreign = [p.name for p in entries if p not in ours]
-        if foreign:
-            raise InputValueError(f"--out {out}: not empty and not an earlier estimate (holds {sorted(foreign)[0]!r}"
-                                  f"{' and more' if len(foreign) > 1 else ''}); choose a new or empty directory")
-        if ours and not overwrite:
-            raise InputValueError(f"--out {out}: holds an earlier estimate; pass --overwrite to replace it")
-        stale = sorted(p for p in ours if p.suffix == ".png")
-        if stale:
-            print(f"torchhand: --overwrite: removing {len(stale)} earlier plot(s) from {out}", file=sys.stderr)
-            for p in stale:
-                p.unlink()
+    out, ours = claim_output_dir(
+        out, lambda p: p.name in OUTPUT_FILES or (p.name.startswith(_OUTPUT_PREFIX) and p.suffix == ".png"),
+        "estimate", overwrite)
+    stale = sorted(p for p in ours if p.suffix == ".png")
+    if stale:
+        print(f"torchhand: --overwrite: removing {len(stale)} earlier plot(s) from {out}", file=sys.stderr)
+        for p in stale:
+            p.unlink()
     return writable_dir(out)
 
 
