@@ -143,7 +143,7 @@ def write_video(clips: list[Clip], out, fmt: str, opts: RenderOptions = RenderOp
 
     check_writer(fmt)
     fps = float(fps or clips[0].fps)
-    with FrameWriter(out, fmt, fps) as writer:
+    with FrameWriter(out, fmt, fps, frames=max(c.T for c in clips)) as writer:
         for frame in render_frames(clips, opts, progress=progress):
             writer.write(frame)
     return writer.out

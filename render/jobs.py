@@ -227,7 +227,7 @@ def render_bvh(paths, out, *, compare=(), size=(640, 480), fps: float | None = N
     panels = skeleton_panels(skeletons, times, fps, opts, follow=follow, close_up=close_up)
     bar = tqdm(total=len(times), desc="render", unit="frame", disable=(not progress) if progress is not None else None)
     try:
-        with FrameWriter(out, fmt, fps) as writer:
+        with FrameWriter(out, fmt, fps, frames=len(times)) as writer:
             for frame in render_skeleton_frames(panels, opts, progress=bar):
                 writer.write(frame)
     finally:

@@ -69,10 +69,17 @@ def check_writer(fmt: str) -> None:
                 from None
 
 
+def _one_image(out: Path, frames: int) -> str:
+    return (f"--out {out}: a .png name holds one image, but {frames if frames > 1 else 'no'} frame(s) are drawn: "
+            f"choose one with --frames A:A+1, or give a directory for PNG frames")
+
+
 class FrameWriter:
     """Streams frames to ``out`` in ``fmt`` at ``fps``; use as a context manager (the file appears on exit)."""
 
-    def __init__(self, out: str | os.PathLike, fmt: str, fps: float, *, quality: int = 8):
+    def __init__(self, out: str | os.PathLike, fmt: str, fps: float, *, quality: int = 8, frames: int | None = None):
+        """frames: how many frames will be written, when known: with PNG output to a name ending in ``.png`` (one
+        image, not a directory of frames) more than one is refused here, before any rendering."""
         self.out = Path(out)
         self.fmt = fmt
         self.fps = float(fps)
@@ -81,7 +88,12 @@ class FrameWriter:
         self._tmp: Path | None = None
         self._writer = None
         self._gif: list = []
-        if fmt == "png":
+        self.single = fmt == "png" and self.out.suffix.lower() == ".png" and not self.out.is_dir()
+        if self.single:                                 # one image: --out still.png with one frame
+            if frames is not None and frames != 1:
+                raise InputValueError(_one_image(self.out, frames))
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+        elif fmt == "png":
             if self.out.exists() and not self.out.is_dir():
                 raise InputValueError(f"--out {self.out}: PNG frames go into a directory, but this is a file")
             self.out.mkdir(parents=True, exist_ok=True)
@@ -103,7 +115,9 @@ class FrameWriter:
         if self.fmt == "png":
             import imageio.v3 as iio
 
-            target = self.out / f"frame_{self.count:05d}.png"
+            if self.single and self.count:
+                raise InputValueError(_one_image(self.out, self.count + 1))
+            target = self.out if self.single else self.out / f"frame_{self.count:05d}.png"
             tmp = target.with_name(f".{target.name}.tmp.png")
             iio.imwrite(tmp, frame)
             publish(tmp, target)

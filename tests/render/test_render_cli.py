@@ -68,6 +68,20 @@ def test_render_grid_gif_and_png_frames(box_turn_result, tmp_path):
     assert iio.imread(files[0]).shape == (72, 96, 3)
 
 
+def test_render_one_png_image(box_turn_result, tmp_path, capsys):
+    """An --out ending in .png is one image of one frame; more frames are refused with exit 2 before drawing."""
+    still = tmp_path / "still.png"
+    assert main(["render", str(box_turn_result), "--out", str(still), "--size", "96x72", "--frames", "3:4",
+                 "--no-shadows", "--no-progress"]) == 0
+    assert still.is_file() and iio.imread(still).shape == (72, 96, 3)
+    capsys.readouterr()
+    many = tmp_path / "many.png"
+    assert main(["render", str(box_turn_result), "--out", str(many), "--size", "96x72", "--frames", "0:3",
+                 "--no-shadows", "--no-progress"]) == 2
+    _one_line_error(capsys, "many.png", "3 frame(s)", "--frames A:A+1")
+    assert not many.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["still.png"]
+
+
 def test_render_compare_with_solution_npz(box_turn_result, tmp_path):
     ref = box_turn_result / "solutions" / "sol_001.npz"
     out = tmp_path / "cmp"

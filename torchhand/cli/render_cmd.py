@@ -14,7 +14,7 @@ close-up of its right wrist when it has fingers, a close-up of a hand rig's wris
 Units and up axis are guessed per file (--bvh-units, --bvh-up; docs/render.md gives the rules).
 
 Output: H.264 mp4 (needs ffmpeg from imageio-ffmpeg), GIF, or PNG frames into a directory (--format png, or an --out
-without .mp4/.gif). Rendering is offscreen (EGL, or OSMesa); PYOPENGL_PLATFORM is respected when set.
+without .mp4/.gif); an --out ending in .png is one image, of one frame (--frames A:A+1). Rendering is offscreen (EGL, or OSMesa); PYOPENGL_PLATFORM is respected when set.
 """
 
 from __future__ import annotations
