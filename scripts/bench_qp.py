@@ -5,6 +5,8 @@ Suite ``window`` (the default): Liu 2009 window QPs (Eq. 4, n = 6 frames) built 
 72 variables (3 hand contacts), 168 (3 hand + 4 table contacts) and 312 (5 hand + 8 table contacts), randomized box
 grasps along smooth trajectories (some infeasible, as they come), float64, batch sizes 1 and 64. Rows:
 ``torchhand.kernels.convex_qp.solve_convex_qp`` (interior point, then ADMM for undecided problems),
+``torchhand.dense_qp.solve_qp_dense`` (the same interior point and polish in NumPy / LAPACK, one problem at a time;
+rows at B = 1 by default, ``--dense-max-batch``),
 ``torchhand.qp.solve_qp`` (qpth, ``ridge`` 1e-8 since Q is only PSD) and Clarabel per problem with its set-up
 inside the timed region. ``speedup_vs_clarabel`` and
 ``speedup_vs_qpth`` are ratios of medians in this run; ``max_rel_obj_diff`` is |obj - obj_clarabel| /
@@ -108,11 +110,13 @@ def bench_qp(device: str = "cpu", B: int = 1024, repeats: int = 3) -> list[dict]
 
 
 def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), repeats: int = 5,
-                    qpth_repeats: int | None = None, seed: int = 0) -> list[dict]:
-    """Rows per (size, batch): ADMM kernel, qpth adapter, Clarabel per problem (see the module docstring)."""
+                    qpth_repeats: int | None = None, seed: int = 0, dense_max_batch: int = 1) -> list[dict]:
+    """Rows per (size, batch): ADMM kernel, the dense path (B <= ``dense_max_batch``, CPU), qpth adapter, Clarabel
+    per problem (see the module docstring)."""
     sys.path.insert(0, os.path.join(HERE, "..", "tests", "kernels"))
     from test_force_plan import window_problems
 
+    from torchhand.dense_qp import solve_qp_dense
     from torchhand.kernels.convex_qp import solve_convex_qp
     from torchhand.kernels.force_plan import assemble_window_qp
 
@@ -134,9 +138,11 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
             rows.append({"name": "clarabel per problem (set-up incl.)", **base, "device": "cpu", **t_ref,
                          "ms_per_problem": 1e3 * t_ref["median_s"] / B, "converged": int(ref_ok.sum())})
             args = {k: v.to(device) for k, v in prob.items()}
-            runs = [("kernel solve_convex_qp (ipm+admm)", lambda: solve_convex_qp(**args), repeats),
-                    ("qpth torchhand.qp.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats)]
-            t_qpth = None
+            runs = [("kernel solve_convex_qp (ipm+admm)", lambda: solve_convex_qp(**args), repeats)]
+            if B <= dense_max_batch and device == "cpu":
+                runs.append(("dense torchhand.dense_qp.solve_qp_dense", lambda: solve_qp_dense(**args), repeats))
+            runs.append(("qpth torchhand.qp.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats))
+            t_qpth, first = None, len(rows)
             for name, fn, reps in runs:
                 res = fn()
                 t = time_fn(fn, device, reps, warmup=0)
@@ -151,7 +157,8 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
                 rows.append(row)
                 if name.startswith("qpth"):
                     t_qpth = t["median_s"]
-            rows[-2]["speedup_vs_qpth"] = t_qpth / rows[-2]["median_s"]
+            for row in rows[first:-1]:
+                row["speedup_vs_qpth"] = t_qpth / row["median_s"]
     return rows
 
 
@@ -165,6 +172,7 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", type=int, nargs="+", default=[72, 168, 312], choices=sorted(WINDOW_CASES))
     p.add_argument("--batches", type=int, nargs="+", default=[1, 64])
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dense-max-batch", type=int, default=1, help="largest B with a method=dense row (CPU)")
     p.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's choice)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
@@ -174,7 +182,7 @@ def main(argv=None) -> int:
     print(f"machine: {info}")
     rows = []
     if a.suite in ("window", "all"):
-        w = bench_window_qp(a.device, a.sizes, a.batches, a.repeats, a.qpth_repeats, a.seed)
+        w = bench_window_qp(a.device, a.sizes, a.batches, a.repeats, a.qpth_repeats, a.seed, a.dense_max_batch)
         print_table(w, WINDOW_COLUMNS)
         rows += w
     if a.suite in ("random", "all"):

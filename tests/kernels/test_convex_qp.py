@@ -234,14 +234,20 @@ MM_SMALL = ["HS21", "HS35", "HS35MOD", "HS51", "HS52", "HS53", "HS76", "HS118", 
             "QAFIRO", "DUALC1"]
 
 
+@pytest.mark.parametrize("solver", ["kernel", "dense"])
 @pytest.mark.parametrize("name", MM_SMALL)
-def test_maros_meszaros(name):
+def test_maros_meszaros(name, solver):
+    """Small Maros-Meszaros problems against Clarabel's objectives: the batched kernel and the single-problem dense
+    path (torchhand.dense_qp, the Liu planner's solver on the CPU)."""
+    from torchhand.dense_qp import solve_qp_dense
+
     root = shared_path("qp", "maros_meszaros")
     ref = json.loads((root / "maros_meszaros_reference_objectives.json").read_text())[name]
     P, q, r, G, h, Ae, be = load_maros_meszaros(name, root)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float64)).unsqueeze(0)  # noqa: E731
-    res = solve_convex_qp(t(0.5 * (P + P.T)), t(q), t(G) if len(G) else None, t(h) if len(G) else None,
-                          t(Ae) if len(Ae) else None, t(be) if len(Ae) else None, max_iters=20000)
+    args = (t(0.5 * (P + P.T)), t(q), t(G) if len(G) else None, t(h) if len(G) else None,
+            t(Ae) if len(Ae) else None, t(be) if len(Ae) else None)
+    res = solve_convex_qp(*args, max_iters=20000) if solver == "kernel" else solve_qp_dense(*args)
     assert int(res.status[0]) == CONVERGED, (name, res)
     assert float(res.objective[0]) + r == pytest.approx(ref["clarabel_obj"], rel=1e-7, abs=1e-7)
 
