@@ -10,8 +10,13 @@ How each grasp is made (deterministic: a seeded search on one thread, node budge
 3. ``torchhand grasp from-result`` at frame ``GRASP_FRAME`` of that solution: the joint angles and the wrist in the
    object frame, snapped onto the object (links within 5 mm touch; a small finger IK closes the gaps).
 
-Every scene here holds the same 9 x 7 x 6 cm box from above at frame 0 (only the mass and the later motion differ);
-the search's dynamic checks pass at every one of these masses, so the four files come out byte-identical.
+Every box scene here holds the same 9 x 7 x 6 cm box from above at frame 0 (only the mass and the later motion
+differ); the search's dynamic checks pass at every one of these masses, so the four box files come out
+byte-identical.
+
+``liu-roll`` (a two-finger pinch on a small cylinder) is made differently, by :func:`make_roll`: a fixed pinch
+posture with the cylinder placed between the thumb's and the index's distal capsules
+(:func:`torchhand.scenes.liu.roll_pinch`), snapped with a 2 mm tolerance so that only the two fingertips touch.
 
     python scripts/make_liu_grasps.py [--only liu-drag ...] [--work DIR] [--check]
 
@@ -26,10 +31,14 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from torchhand.cli import main as cli
+from torchhand.hand import default_hand
+from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
 from torchhand.scene_io import export_scene_dir
 from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import _GRASPS, LIU_SCENES, approach_scene
+from torchhand.scenes.liu import _GRASPS, LIU_SCENES, approach_scene, roll_pinch
 
 SYNTH = ["--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000", "--solutions", "1",
          "--seed", "0", "--no-progress", "--threads", "1"]
@@ -37,12 +46,51 @@ GRASP_FRAME = 7
 """Frame of the approach the grasp is taken at (the wrist 1 cm farther along the palm normal than the scene's hold
 pose): thumb, index and little finger on the box's sides, seven contact links after snapping (the little-proximal
 gap of 2.95 mm is the largest). At frame 6 the index-proximal link is 4.5 mm off the far face and is released after
-the first frame; with the five contacts left, liu-lift's 1.5 kg box makes the planner add contacts from about frame
-11 and the motion fails `torchhand check` (added contacts that carry force while their link is still 8-26 mm from
-the box, fingers through each other). At frame 7 the grasp holds every scene without added contacts."""
+the first frame, leaving five contacts. The frame-7 grasp holds liu-drag, liu-pivot, liu-push and a 1.5 kg lift
+with its own contacts; liu-lift's 2.5 kg box makes the planner add one."""
+
+
+ROLL_SNAP_TOL = 0.002
+"""Snap tolerance of the liu-roll grasp, metres. The pinch leaves the thumb's proximal phalanx and the index's middle
+phalanx 3.0 and 2.4 mm from the cylinder (their capsules are thicker than the distal ones they carry); with the default
+5 mm they would become contacts too, and the grasp would no longer be a two-finger pinch."""
+
+
+def make_roll(work: Path | None = None) -> Path:
+    """The liu-roll grasp, deterministic and without search (``work`` is not used: nothing intermediate):
+
+    1. the pinch posture and the cylinder in the hand frame (``roll_pinch``: the thumb and the index distal capsules
+       on opposite sides of the cylinder's curved surface, both roughly perpendicular to its axis, so that a rotation
+       about the axis rolls the cylinder along them; the other fingers curled into the palm);
+    2. ``wrist_in_object`` = the inverse of the cylinder's pose in the hand frame; frame 0 of the scene;
+    3. ``snap_grasp`` with ``ROLL_SNAP_TOL``: the two distal links are the only contacts (0.2 mm gap of the index
+       closed by the finger IK); the two thicker phalanges behind them are reported as gaps that are not contacts.
+
+    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a grid over the thumb's
+    six joints (6 values each) and the index's four (8 each) for distal capsules about 2 R + r_thumb + r_index apart
+    and near parallel, kept when the cylinder between them cleared the other links, then a least-squares refinement
+    (tangency, diametrically opposite contacts, fingertip pads facing the cylinder, about 3 mm of clearance for
+    every other link and between the thumb and the index fingers), every joint kept at least 4 degrees inside its
+    limits so that the fingers can move both ways.
+    """
+    scene = builtin_scene("liu-roll")
+    hand = default_hand()
+    q, T_hand_object = roll_pinch(hand)
+    grasp = Grasp(hand="default", side="right", joint_names=tuple(hand.joint_names), q=q,
+                  wrist_in_object=np.linalg.inv(T_hand_object), frame=0, length=0.19)
+    snapped, report = snap_grasp(grasp, grasp_hand(grasp), scene.object.mesh, tol=ROLL_SNAP_TOL)
+    for line in report.lines():
+        print(f"liu-roll snap: {line}")
+    if set(snapped.contact_links) != {"thumb_distal", "index_distal"}:
+        raise SystemExit(f"liu-roll: expected the thumb and index distal links as contacts, got "
+                         f"{', '.join(snapped.contact_links)}")
+    _GRASPS.mkdir(exist_ok=True)
+    return save_grasp(snapped, _GRASPS / "liu-roll.npz", overwrite=True)
 
 
 def make(name: str, work: Path) -> Path:
+    if name == "liu-roll":
+        return make_roll(work)
     scene = builtin_scene(name)
     sdir = export_scene_dir(approach_scene(scene), work / f"{name}-approach", overwrite=True)
     res = work / f"{name}-synth"

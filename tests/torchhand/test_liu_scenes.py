@@ -25,21 +25,26 @@ def test_scene_builds_deterministically(name):
     assert name in list_builtin_scenes()
     a, b = builtin_scene(name), builtin_scene(name)
     a.validate()
-    assert 30 <= a.T <= 60 and a.fps == FPS and a.hands[0].side == "right"
+    assert 30 <= a.T <= 66 and a.fps == FPS and a.hands[0].side == "right"
     assert torch.equal(a.object_pose, b.object_pose) and torch.equal(a.hands[0].wrist_pose, b.hands[0].wrist_pose)
-    # at rest on the table at frame 0: the lowest vertex at the table height (trimesh transforms the mesh)
+    # frame 0 (trimesh transforms the mesh): the boxes rest on the table (lowest vertex at the table height); the
+    # roll cylinder is held in the air, its lowest vertex at least 15 cm above the table
     lowest = a.object.mesh.copy().apply_transform(a.object_pose[0].numpy()).vertices[:, 2].min()
-    assert abs(lowest - TABLE_HEIGHT) < 1e-9
+    if name == "liu-roll":
+        assert lowest >= TABLE_HEIGHT + 0.15
+    else:
+        assert abs(lowest - TABLE_HEIGHT) < 1e-9
 
 
 def test_scene_motions():
     """What each example does, measured on its object poses: the drag moves 12 cm along x on the table, the lift
-    10 cm up, the pivot tips 30 degrees with the pivot edge's two vertices fixed on the table, and the push holds the
-    box still in the air while the external force goes +3 N -> -3 N along y."""
+    10 cm up, the pivot tips 30 degrees with the pivot edge's two vertices fixed on the table, the push holds the
+    box still in the air while the external force goes +3 N -> -3 N along y, and the roll turns a 4 x 3 cm cylinder
+    40 degrees about its own (fixed, horizontal) axis and back."""
     drag = builtin_scene("liu-drag").object_pose.numpy()
     assert np.allclose(drag[-1, :3, 3] - drag[0, :3, 3], [0.12, 0, 0], atol=1e-12)
     lift = builtin_scene("liu-lift")
-    assert lift.object.mass == 1.5
+    assert lift.object.mass == 2.5
     assert np.isclose(lift.object_pose[-1, 2, 3] - lift.object_pose[0, 2, 3], 0.10, atol=1e-12)
     pivot = builtin_scene("liu-pivot")
     P = pivot.object_pose.numpy()
@@ -56,6 +61,18 @@ def test_scene_motions():
     assert np.abs(w[:, [0, 2, 3, 4, 5]]).max() == 0 and w[0, 1] == 0 and w[-1, 1] == 0
     moving = np.abs(w[:, 1]) > 0
     assert np.abs(push.object_pose.numpy()[moving] - push.object_pose.numpy()[moving][0]).max() < 1e-12
+    # roll: the cylinder turns about its own axis (object z, the world x axis) with its centre fixed, 0 -> 40 -> 0
+    # degrees, and is still during the first and last 6 frames
+    roll = builtin_scene("liu-roll")
+    assert roll.object.mass == 0.05 and roll.external_wrench is None
+    P = roll.object_pose.numpy()
+    assert np.abs(P[:, :3, 3] - P[0, :3, 3]).max() == 0.0
+    assert np.allclose(P[:, :3, 2], [1.0, 0.0, 0.0], atol=1e-12)                 # the axis stays put
+    angle = np.degrees(np.arctan2(-P[:, 2, 1], P[:, 2, 0]))      # about +x, from the world z of object x and y
+    assert abs(angle.max() - 40.0) < 1e-9 and abs(angle[-1]) < 1e-9 and angle.min() > -1e-9
+    assert np.abs(angle[:6]).max() < 1e-12 and np.abs(angle[-6:]).max() < 1e-9
+    ext = roll.object.mesh.extents
+    assert np.allclose(ext, [0.04, 0.04, 0.03], atol=1e-4)
 
 
 @pytest.mark.parametrize("name", LIU_SCENES)
@@ -68,7 +85,11 @@ def test_packaged_grasp_touches_the_object(name):
     assert path is not None and path.is_file() and path.name == f"{name}.npz"
     hand = track_hand(scene.hands[0])
     g = load_grasp(path, hand)
-    assert g.side == "right" and g.hand == "default" and len(g.contact_links) >= 3
+    assert g.side == "right" and g.hand == "default" and len(g.contact_links) >= 2
+    if name == "liu-roll":
+        assert set(g.contact_links) == {"thumb_distal", "index_distal"}
+    else:
+        assert len(g.contact_links) >= 3
     mesh = scene.object.mesh
     pq = trimesh.proximity.ProximityQuery(mesh)
     assert np.abs(pq.signed_distance(g.contact_object)).max() < 1e-6
@@ -144,6 +165,36 @@ def test_drag_end_to_end(tmp_path):
         slip = max(slip, float(np.linalg.norm(vt, axis=-1).max()))
     print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
     assert pairs >= pose.shape[0] and slip <= 1e-3
+
+
+def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):
+    """Liu's heavy lift (Sec. 6): the grasp cannot hold the box with its own contacts within the 30 N limit, so the
+    planner adds one (Sec. 4.3), the motion completes and every frame passes ``torchhand check`` (the checker's 2 mm
+    contact-hand bound covers the added contact whenever it carries force). The same lift of a 1.5 kg box (a mass
+    override, recorded as ``variant_mass`` so the checker balances it with its own weight) needs no contact."""
+    from torchhand.check import check_result
+    from torchhand.manipulation import ManipulationSettings, manipulate, write_manipulation
+    from torchhand.manipulation.plan import PlanSettings
+
+    out = tmp_path / "lift"
+    assert cli(["manipulate", "liu-lift", "--out", str(out), "--threads", "1", "--no-progress"]) == 0
+    assert cli(["check", str(out)]) == 0
+    stats = json.loads((out / "stats.json").read_text())
+    z = np.load(out / "solutions" / "sol_000.npz")
+    added = sorted({str(z["contact_link_name"][z["contact_link"][t, k]])
+                    for t, k in zip(*np.nonzero(z["contact_added"]))})
+    f_added = max(float(np.linalg.norm(z["contact_force"][t, k])) for t, k in zip(*np.nonzero(z["contact_added"])))
+    print(f"liu-lift 2.5 kg: {stats['added_contacts']} contact(s) added {added}, largest force {f_added:.1f} N, "
+          f"{stats['deferred_contacts']} deferral(s)")
+    assert stats["complete"] and stats["added_contacts"] >= 1 and f_added > 1.0 and "variant_mass" not in z.files
+    res = manipulate(builtin_scene("liu-lift"), load_grasp(grasp_path("liu-lift")),
+                     ManipulationSettings(plan=PlanSettings(mass=1.5)))
+    light = write_manipulation(res, tmp_path / "light")
+    report = check_result(light)
+    z = np.load(light / "solutions" / "sol_000.npz")
+    print(f"liu-lift at 1.5 kg: {res.num_added} contact(s) added; check {'passes' if report.passed else 'fails'}")
+    assert res.num_added == 0 and float(z["variant_mass"]) == 1.5
+    assert report.passed, report.solutions[0].failure()
 
 
 def test_push_forces_balance_the_external_force():

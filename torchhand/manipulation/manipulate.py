@@ -46,10 +46,12 @@ from ..kernels.convex_qp import solve_convex_qp
 from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
 from ..kernels.status import SolverStatus
 from . import plan as _plan
+from ..dense_qp import solve_qp_dense
 from .grasp import Grasp
 from .plan import GraspUnsuitable, PlanSettings
 from .snap import signed_distance
 from .synth import HandFrame, SynthContext, SynthSettings, synthesize_frame, torques
+from .torque_derivs import static_torques, tree_state
 
 RELEASE_GAP = 5e-4
 """A grasp contact whose link capsule stays farther than this from the object (or deeper in it) after the first
@@ -137,8 +139,28 @@ def _boundary(f: np.ndarray, n: np.ndarray, t1: np.ndarray, mu: float, ratio: fl
 
 
 def _reproject(run, k: int, f_plan: np.ndarray, lam_plan: np.ndarray):
-    """Addition (c): the forces closest to the plan that balance frame k with the updated contacts.
-    Returns (forces (M, 3), lambda (M, 4), status)."""
+    """Addition (c): the forces closest to the plan that balance frame k with the updated contacts, by the planner's
+    QP solver (``PlanSettings.qp_solver``). When the updated contacts cannot balance the frame exactly but miss by
+    no more than the planner's deficit allowance (:data:`~torchhand.manipulation.plan.BALANCE_ALLOWANCE`: a pinch
+    whose line has moved off the centre of mass), the frame is balanced for the nearest wrench they can produce
+    (the least-squares fit), as the planner does. Returns (forces (M, 3), lambda (M, 4), status)."""
+    geo = run.geo
+    f, lam, status = _reproject_once(run, k, f_plan, lam_plan)
+    if status == int(SolverStatus.CONVERGED):
+        return f, lam, status
+    planned = geo.wrench[k].copy()
+    geo.wrench[k] = geo.wrench_required[k]
+    _, d = _plan._wrench_fit(run.c, geo, k, run.settings)
+    geo.wrench[k] = geo.wrench_required[k] - d
+    if _plan.allowed_deficit(geo, d):
+        f, lam, status = _reproject_once(run, k, f_plan, lam_plan)
+        if status == int(SolverStatus.CONVERGED):
+            return f, lam, status
+    geo.wrench[k] = planned
+    return f_plan, lam_plan, status
+
+
+def _reproject_once(run, k: int, f_plan: np.ndarray, lam_plan: np.ndarray):
     args = _plan._window_arrays(run.c, run.geo, k, 1, run.settings)
     lps = assemble_frame_lps(**args)
     M = args["points"].shape[2]
@@ -148,7 +170,11 @@ def _reproject(run, k: int, f_plan: np.ndarray, lam_plan: np.ndarray):
     Q = 2 * (Bd.T @ Bd) + 2 * torch.diag(zero) + 1e-9 * torch.eye(4 * M, dtype=Bd.dtype)
     p = -2 * Bd.T @ torch.as_tensor(f_plan.reshape(-1), dtype=Bd.dtype)
     warm = (torch.as_tensor(lam_plan.reshape(1, -1)), None, None)
-    res = solve_convex_qp(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm, method="admm")
+    if run.settings.qp_solver == "dense":
+        res = solve_qp_dense(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm)
+    else:
+        res = solve_convex_qp(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm,
+                              method="admm")
     status = int(res.status[0])
     if status != int(SolverStatus.CONVERGED):
         return f_plan, lam_plan, status
@@ -214,7 +240,6 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
     f_prev, z = run.f_init_vals, None
     rows, per_frame, t_plan, t_synth = [], [], 0.0, 0.0
     geo.reach_step = ss.joint_speed / float(scene.fps)      # added contacts must be reachable (plan._candidate)
-    geo.reach_root = (ss.root_rate / float(scene.fps), ss.root_speed / float(scene.fps))
     deferred = 0
     for k in range(T):
         t0 = time.perf_counter()
@@ -254,8 +279,10 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
             for i in np.flatnonzero(active & (np.abs(res.gap) > RELEASE_GAP)):
                 c.start[i] = T
                 active[i] = False
-        # object points from Eq. 6, projected onto the mesh, with the mesh's normal
-        x = _frame_points(hand, HandFrame(q=q, root=root, h=h, p=None), links, h)
+        # object points from Eq. 6, projected onto the mesh, with the mesh's normal (one kinematics pass of frame k
+        # serves them, the torques and the material points of h^{k-1} below)
+        ts = tree_state(ctx.order, q, root)
+        x = _link_points(ts, links, h)
         Rs, os_ = pose[k][:3, :3], pose[k][:3, 3]
         p_obj = (x - os_) @ Rs
         _, p_proj, _ = signed_distance(scene.object.mesh, p_obj)
@@ -272,9 +299,9 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         snap = dataclasses.replace(c, link=list(c.link), h=list(c.h), p=list(c.p), n=list(c.n), t1=list(c.t1),
                                    start=list(c.start), source=list(c.source), h_obj=list(c.h_obj),
                                    slide=dict(c.slide))      # the contacts as frame k was re-projected with
-        u = torques(hand, q[None], root[None], links[active], h[active][None], f_fin[:H][active])[0]
+        u = static_torques(ctx.order, ts, links[active], h[active], f_fin[:H][active], ctx.gravity)
         # contact states for frame k+1 (Eq. 7's relative velocity of the material points)
-        xm = _frame_points(hand, HandFrame(q=q, root=root, h=None, p=None), links, prev.h)
+        xm = _link_points(ts, links, prev.h)
         x_prev = _frame_points(hand, prev, links, prev.h)
         d_now = xm - (prev.p @ Rs.T + os_)
         d_before = x_prev - (prev.p @ pose_prev[:3, :3].T + pose_prev[:3, 3])
@@ -321,12 +348,12 @@ def _rebalance_last(run, rows: list, scene, settings: ManipulationSettings) -> b
     inertia = torch.tensor(np.array(obj.inertia), dtype=torch.float64) * (mass / float(obj.mass))
     _, wrench = required_wrench(cut.object_pose.double(), torch.tensor(np.array(obj.com), dtype=torch.float64), mass,
                                 inertia, cut.gravity.double(), cut.fps, external=cut.external_wrench)
-    saved = geo.wrench[k].copy()
-    geo.wrench[k] = wrench[-1].numpy()
+    saved = geo.wrench[k].copy(), geo.wrench_required[k].copy()
+    geo.wrench[k] = geo.wrench_required[k] = wrench[-1].numpy()
     try:                                                # with the contacts as that frame had them
         f, lam, status = _reproject(SimpleNamespace(c=r["snap"], geo=geo, settings=ps), k, r["force"], r["lam"])
     finally:
-        geo.wrench[k] = saved
+        geo.wrench[k], geo.wrench_required[k] = saved
     if status != int(SolverStatus.CONVERGED):
         return False
     m = r["active"]
@@ -383,6 +410,16 @@ def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
     return _points(hand, frame.q, frame.root, np.asarray(links), np.asarray(local))
 
 
+def _link_points(ts, links, local) -> np.ndarray:
+    """World positions (P, 3) of link-frame points ``local`` (P, 3) on ``links`` (P,), from a
+    :func:`~.torque_derivs.tree_state` (the arithmetic of :func:`.synth._points`)."""
+    links = np.asarray(links)
+    if len(links) == 0:
+        return np.zeros((0, 3))
+    Tl = ts.T[links]
+    return np.einsum("pij,pj->pi", Tl[:, :3, :3], np.asarray(local)) + Tl[:, :3, 3]
+
+
 def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings, deferred: int = 0) -> ManipulationResult:
     """The result of the frames in ``rows`` (all of them, or the first ``len(rows)`` when the motion stopped early:
     then the scene is cut to those frames and the slots are the contacts that existed when it stopped)."""
@@ -430,7 +467,8 @@ def solution_arrays(result: ManipulationResult) -> dict:
     """The ``sol_000.npz`` arrays (docs/result_format.md, docs/manipulation.md): every key of the contract plus
     ``torque`` (T, 6 + D), ``torque_names`` (6 + D,), ``torque_rest`` (6 + D,), ``contact_added`` (T, K) and the
     method's own keys (``contact_lambda``, ``planned_force``, ``contact_hand_local``, ``contact_object_local``,
-    ``objective``, ``sqp_iterations``, ``mass``, ``contact_slot`` (T, K): the contact's slot in order of creation,
+    ``objective``, ``sqp_iterations``, ``mass``, ``variant_mass`` (only when ``PlanSettings.mass`` overrides the
+    scene's mass), ``contact_slot`` (T, K): the contact's slot in order of creation,
     -1 where inactive (columns are sorted active-first per frame, so the slot identifies a contact across frames),
     and ``contact_slot_link`` (K,): each slot's link index, never-active slots included)."""
     from ..result import FORMAT_VERSION
@@ -462,6 +500,8 @@ def solution_arrays(result: ManipulationResult) -> dict:
         "sqp_iterations": r.iterations, "mass": np.array(r.mass),
         "contact_slot": np.where(mask, order, -1).astype(np.int64),
         "contact_slot_link": r.contact_link.astype(np.int64),
+        # a mass override (PlanSettings.mass) is not the scene's: the checker balances the solution with its own
+        **({"variant_mass": np.array(float(r.mass))} if float(r.mass) != float(r.scene.object.mass) else {}),
     }
 
 

@@ -207,6 +207,13 @@ class SynthContext:
         self.D = self.hand.num_joints
         self.order = tree_order(self.hand)
 
+    def sdf_with_grad(self, points: np.ndarray):
+        """Signed distance (P,) and its gradient (P, 3) of the object at object-frame points (P, 3), metres: the
+        grid's trilinear kernel called directly (the values of :meth:`~torchhand.sdf.SDFGrid.query_with_grad`
+        without its autograd wrapper and checks, which cost a fifth of a query at this size)."""
+        sd, grad = self.sdf.query_with_grad_unchecked(torch.from_numpy(points)[None])
+        return sd[0].numpy(), grad[0].numpy()
+
     def object_normals(self, points: np.ndarray) -> np.ndarray:
         """Outward unit normals of the object at object-frame points (P, 3): the SDF grid's gradient, continuous
         across edges (a blend of the faces' normals within a voxel of an edge, inside their normal cone)."""
@@ -274,6 +281,33 @@ def rotvec(R: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ dense QP
+def _solve_fn():
+    """``solve(S, b)`` for a square float64 S (m, m) and b (m,): the LAPACK gesv gufunc that ``np.linalg.solve`` calls,
+    without the wrapper's per-call argument handling (a few dozen microseconds, thousands of calls per motion);
+    ``np.linalg.solve`` itself where NumPy does not expose it. Raises ``np.linalg.LinAlgError`` on a singular S."""
+    try:
+        from numpy.linalg import _umath_linalg
+        from numpy.linalg.linalg import (
+            _raise_linalgerror_singular,
+            get_linalg_error_extobj,
+        )
+
+        gufunc = _umath_linalg.solve1
+        extobj = get_linalg_error_extobj(_raise_linalgerror_singular)
+        probe = gufunc(np.eye(2), np.ones(2), signature="dd->d", extobj=extobj)
+        if not np.array_equal(probe, np.ones(2)):
+            raise ValueError("probe")
+    except (ImportError, AttributeError, TypeError, ValueError):     # another NumPy: the public function
+        return np.linalg.solve
+
+    def solve(S, b):
+        return gufunc(S, b, signature="dd->d", extobj=extobj)
+    return solve
+
+
+_solve = _solve_fn()
+
+
 def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
              max_iters: int = 200, tol: float = 1e-10):
     """``min 1/2 x^T H x + g^T x  s.t.  A x = b, C x <= d`` for a small dense strictly convex QP (H positive
@@ -285,7 +319,6 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
     returns: (x (n,), status: 0 solved, 1 infeasible, 2 iteration limit, largest violation left)
     """
     n = H.shape[0]
-    N_eq = [A[i] for i in range(A.shape[0])]
     act: list[int] = []                                       # active inequality rows
     u = np.zeros(0)                                           # multipliers of act (>= 0)
     Hinv = None
@@ -309,7 +342,7 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
         S = W @ Nm.T
         rhs = -(rhs_c + Nm @ xh)
         try:
-            y = np.linalg.solve(S, rhs)
+            y = _solve(S, rhs)
         except np.linalg.LinAlgError:
             y = np.linalg.lstsq(S, rhs, rcond=None)[0]
         return xh + W.T @ y, y
@@ -317,25 +350,27 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
     def kkt(rhs_x, rhs_c):
         if Hinv is not None:
             return kkt_schur(rhs_x, rhs_c)
-        Nm = np.array(N_eq + [-C[j] for j in act]).reshape(-1, n)     # constraint normals n^T x >= b form
+        Nm = np.array([A[i] for i in range(A.shape[0])] + [-C[j] for j in act]).reshape(-1, n)   # n^T x >= b form
         m = Nm.shape[0]
         K = np.zeros((n + m, n + m))
         K[:n, :n], K[:n, n:], K[n:, :n] = H, -Nm.T, -Nm
         try:
-            sol = np.linalg.solve(K, np.concatenate([rhs_x, rhs_c]))
+            sol = _solve(K, np.concatenate([rhs_x, rhs_c]))
         except np.linalg.LinAlgError:
             sol = np.linalg.lstsq(K, np.concatenate([rhs_x, rhs_c]), rcond=None)[0]
         return sol[:n], sol[n:]
 
     x, _ = kkt(-g, -b if A.shape[0] else np.zeros(0))
     status = 2
+    feas_tol = tol * (1 + np.abs(d).max()) if C.shape[0] else 0.0
     for _ in range(max_iters):
         s = d - C @ x                                          # slack, >= 0 when satisfied
-        if C.shape[0] == 0 or s.min() >= -tol * (1 + np.abs(d).max()):
+        if C.shape[0] == 0 or s.min() >= -feas_tol:
             status = 0
             break
         p = int(np.argmin(s))
         n_p = -C[p]                                            # n_p^T x >= -d_p
+        n_max = np.abs(n_p).max()
         u_p = 0.0
         while True:
             z, r = kkt(n_p, np.zeros(A.shape[0] + len(act)))   # primal direction, multiplier change
@@ -347,7 +382,7 @@ def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.n
                 drop = int(np.argmin(ratios))
                 t1 = float(ratios[drop])
             nz = float(n_p @ z)
-            if np.abs(H @ z).max() <= 1e-9 * np.abs(n_p).max() or nz <= 0:     # dependent on the active set
+            if np.abs(H @ z).max() <= 1e-9 * n_max or nz <= 0:     # dependent on the active set
                 if drop < 0:
                     status = 1
                     return x, status, float(max(0.0, -s.min()))
@@ -443,6 +478,18 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     s_step = st.h_step * (10.0 if settle else 1.0) / seg_len  # settling may move h onto the capsule's facing side
 
     analytic = st.derivatives == "analytic"
+    # per-frame constants of the rows below: the proximal Jacobian, each contact's tangents (Eq. 7) and, for a
+    # contact that may slide, the direction of its tangential force and the tangent normal to it
+    Jp_const = np.diag(np.concatenate([np.full(3, wq), np.full(3, wx), np.full(D, wq), st.prox_h * seg_len]))
+    tangents = [_tangents(n_w[i]) for i in range(H)]
+    slide_dir = {}
+    for i in range(H):
+        ft = f_t[i]
+        if slide[i] and np.linalg.norm(ft) > 1e-9:
+            fhat = ft / np.linalg.norm(ft)
+            slide_dir[i] = (fhat, np.cross(n_w[i], fhat))
+    eye_nv = np.eye(nv)
+    C_box = np.concatenate([eye_nv, -eye_nv], 0)                    # the step bounds' rows of every QP
 
     def linearise(q, root, s):
         """Residuals, constraints and bounds at (q, root, s); also the hand points h."""
@@ -456,8 +503,8 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         cw = np.einsum("hij,hj->hi", Rl, c) + T[links, :3, 3]
         ax_w = np.einsum("pij,pj->pi", T[ctx.ax_link, :3, :3], ctx.ax_local) + T[ctx.ax_link, :3, 3]
         qpts = np.concatenate([cw, ax_w], 0)
-        sd, grad = ctx.sdf.query_with_grad(torch.as_tensor(((qpts - os_) @ Rs)[None]))
-        sd, grad = sd[0].numpy(), grad[0].numpy() @ Rs.T          # world gradient
+        sd, grad = ctx.sdf_with_grad((qpts - os_) @ Rs)
+        grad = grad @ Rs.T                                                 # world gradient
         sd_c, g_c, sd_a, g_a = sd[:H], grad[:H], sd[H:], grad[H:]
         n_c = g_c / np.maximum(np.linalg.norm(g_c, axis=-1, keepdims=True), 1e-12)
         h = np.where(movable[:, None], c - cr[:, None] * np.einsum("hji,hj->hi", Rl, n_c), start.h)
@@ -483,25 +530,55 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         rv = rotvec(root[:3, :3] @ R_prev.T)
         pr = np.concatenate([wq * rv, wx * (root[:3, 3] - prev.root[:3, 3]), wq * (q - prev.q),
                              st.prox_h * seg_len * (s - s_prev)])
-        Jp = np.diag(np.concatenate([np.full(3, wq), np.full(3, wx), np.full(D, wq), st.prox_h * seg_len]))
-        # ---- kinematics of the points involved
+        Jp = Jp_const
+        # ---- finger-finger pairs (addition (a)): capsule pairs of different fingers within 1 cm
+        if len(ctx.pairs):
+            i0, i1 = ctx.pairs_np[:, 0], ctx.pairs_np[:, 1]
+            a0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_a[i0]) + T[i0, :3, 3]
+            b0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_b[i0]) + T[i0, :3, 3]
+            a1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_a[i1]) + T[i1, :3, 3]
+            b1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_b[i1]) + T[i1, :3, 3]
+            pa, pb = _closest_segment_points(a0, b0, a1, b1)
+            depth = ctx.cap_r[i0] + ctx.cap_r[i1] - np.linalg.norm(pa - pb, axis=-1)
+            near_f = np.flatnonzero(depth > -0.01)
+        else:
+            near_f = np.zeros(0, dtype=np.int64)
+        m_ = len(near_f)
+        if m_:
+            la, lb_ = ctx.pairs_np[near_f, 0], ctx.pairs_np[near_f, 1]
+            f_pts = np.concatenate([pa[near_f], pb[near_f]], 0)
+            f_lks = np.concatenate([la, lb_])
+        # ---- kinematics of the points involved (one point Jacobian call: contacts, material points, axis samples
+        # and the pairs' closest points)
         xm = np.einsum("hij,hj->hi", Rl, prev.h) + T[links, :3, 3]
         pts_link = np.concatenate([links, links, ctx.ax_link])
+        n_main = pts_link.shape[0]
         if analytic:
-            J_all = point_jacobian(ctx.order, ts, pts_link, np.concatenate([cw, xm, ax_w], 0))
+            if m_:
+                J_all = point_jacobian(ctx.order, ts, np.concatenate([pts_link, f_lks]),
+                                       np.concatenate([cw, xm, ax_w, f_pts], 0))
+            else:
+                J_all = point_jacobian(ctx.order, ts, pts_link, np.concatenate([cw, xm, ax_w], 0))
         else:
             pts_local = np.concatenate([c, prev.h, ctx.ax_local], 0)
             J_all = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(pts_link),
                                         torch.as_tensor(pts_local), torch.as_tensor(root)[None],
                                         wrt_root=True)[0].numpy()
-        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:]
+            if m_:
+                loc = np.einsum("pji,pj->pi", T[f_lks, :3, :3], f_pts - T[f_lks, :3, 3])
+                J_all = np.concatenate([J_all, hand.point_jacobian(
+                    torch.as_tensor(q)[None], torch.as_tensor(f_lks), torch.as_tensor(loc),
+                    torch.as_tensor(root)[None], wrt_root=True)[0].numpy()], 0)
+        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:n_main]
+        Jm_pad = _pad(Jm, nv)
         A_rows, b_rows, C_rows, d_rows = [], [], [], []
         eq_viol, in_viol, soft_r, soft_J = [], [], [], []
         w_rows = []
         G_rows, g_rows = [], []                                 # receding-slack rows (elastic like the equalities)
+        Jcf_all = np.zeros((H, 3, nv))
+        Jcf_all[:, :, :N] = Jc
         for i in range(H):
-            Jcf = np.zeros((3, nv))
-            Jcf[:, :N] = Jc[i]
+            Jcf = Jcf_all[i]
             if movable[i]:
                 Jcf[:, N + i] = Rl[i] @ seg[i]
             if i in approach:                                   # receding slack towards its object point
@@ -515,13 +592,14 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             if not active[i]:
                 continue
             if movable[i]:                                      # Eq. 6: the capsule touches the object
-                A_rows.append(g_c[i] @ Jcf)
+                row = g_c[i] @ Jcf
+                A_rows.append(row)
                 b_rows.append(cr[i] - sd_c[i])
                 eq_viol.append(abs(cr[i] - sd_c[i]))
                 w_rows.append(TOUCH_WEIGHT)
                 # and, when elastic mode relaxes Eq. 6, it does so away from the object: the contact's own axis
                 # point keeps the non-penetration bound of the axis samples (which may miss it between samples)
-                C_rows.append(-g_c[i] @ Jcf)
+                C_rows.append(-row)
                 d_rows.append(sd_c[i] - cr[i] - min(-st.margin, sd_c[i] - cr[i]))
             else:
                 A_rows.append(g_c[i] @ Jcf)
@@ -532,72 +610,57 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
                 continue
             # Eq. 7 on the material points of h^{k-1}
             rel = xm[i] - y_prev[i] - d0[i]
-            Jrel = _pad(Jm[i], nv)
-            t1, t2 = _tangents(n_w[i])
-            ft = f_t[i]
-            if slide[i] and np.linalg.norm(ft) > 1e-9:
-                fhat = ft / np.linalg.norm(ft)
-                t3 = np.cross(n_w[i], fhat)
+            Jrel = Jm_pad[i]
+            t1, t2 = tangents[i]
+            if i in slide_dir:
+                fhat, t3 = slide_dir[i]
+                v3, vf = t3 @ rel, fhat @ rel
                 A_rows.append(t3 @ Jrel)
-                b_rows.append(-t3 @ rel)
-                eq_viol.append(abs(t3 @ rel))
+                b_rows.append(-v3)
+                eq_viol.append(abs(v3))
                 w_rows.append(ELASTIC_WEIGHT)
                 C_rows.append(-fhat @ Jrel)
-                d_rows.append(fhat @ rel)
-                in_viol.append(-fhat @ rel)
+                d_rows.append(vf)
+                in_viol.append(-vf)
             elif settle:                                         # soft: weighted residual rows
                 for t in (t1, t2):
                     soft_r.append(SETTLE_WEIGHT * (t @ rel))
                     soft_J.append(SETTLE_WEIGHT * (t @ Jrel))
             else:
                 for t in (t1, t2):
+                    v = t @ rel
                     A_rows.append(t @ Jrel)
-                    b_rows.append(-t @ rel)
-                    eq_viol.append(abs(t @ rel))
+                    b_rows.append(-v)
+                    eq_viol.append(abs(v))
                     w_rows.append(ELASTIC_WEIGHT)
+        # the inequality rows in blocks: receding slack first (the first m_app rows), then the contacts' rows
+        C_blocks = [np.array(G_rows + C_rows).reshape(-1, nv)]
+        d_blocks = [np.array(g_rows + d_rows, dtype=np.float64)]
         # non-penetration of the capsule axes (object and table); only points within 1 cm of their limit
         ax_r = ctx.ax_radius
         lim_obj = sd_a - ax_r
         lb = np.minimum(-st.margin, lim_obj)
         near = np.flatnonzero(lim_obj < 0.01)
-        C_rows.extend(_pad(-np.einsum("pc,pcn->pn", g_a[near], Ja[near]), nv))
-        d_rows.extend(lim_obj[near] - lb[near])
+        C_blocks.append(_pad(-np.einsum("pc,pcn->pn", g_a[near], Ja[near]), nv))
+        d_blocks.append(lim_obj[near] - lb[near])
         if ctx.table is not None:
             lim_tab = ax_w[:, 2] - ax_r - ctx.table
             lbt = np.minimum(-st.margin, lim_tab)
             near = np.flatnonzero(lim_tab < 0.01)
-            C_rows.extend(_pad(-Ja[near, 2], nv))
-            d_rows.extend(lim_tab[near] - lbt[near])
+            C_blocks.append(_pad(-Ja[near, 2], nv))
+            d_blocks.append(lim_tab[near] - lbt[near])
         # finger-finger separation (addition (a)): capsule pairs of different fingers within 1 cm keep their axis
         # distance >= r_a + r_b - margin along the line between their closest axis points; a pair already deeper
         # may not go deeper
-        if len(ctx.pairs):
-            i0, i1 = ctx.pairs_np[:, 0], ctx.pairs_np[:, 1]
-            a0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_a[i0]) + T[i0, :3, 3]
-            b0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_b[i0]) + T[i0, :3, 3]
-            a1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_a[i1]) + T[i1, :3, 3]
-            b1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_b[i1]) + T[i1, :3, 3]
-            pa, pb = _closest_segment_points(a0, b0, a1, b1)
-            depth = ctx.cap_r[i0] + ctx.cap_r[i1] - np.linalg.norm(pa - pb, axis=-1)
-            near = np.flatnonzero(depth > -0.01)
-            if len(near):
-                la, lb_ = ctx.pairs_np[near, 0], ctx.pairs_np[near, 1]
-                nrm = pa[near] - pb[near]
-                nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
-                pts = np.concatenate([pa[near], pb[near]], 0)
-                lks = np.concatenate([la, lb_])
-                if analytic:
-                    Jf = point_jacobian(ctx.order, ts, lks, pts)
-                else:
-                    loc = np.einsum("pji,pj->pi", T[lks, :3, :3], pts - T[lks, :3, 3])
-                    Jf = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(lks), torch.as_tensor(loc),
-                                             torch.as_tensor(root)[None], wrt_root=True)[0].numpy()
-                m_ = len(near)
-                Jd = np.einsum("pc,pcn->pn", nrm, Jf[:m_] - Jf[m_:])
-                sep = -depth[near]
-                lbf = np.minimum(-st.margin, sep)
-                C_rows.extend(_pad(-Jd, nv))
-                d_rows.extend(sep - lbf)
+        if m_:
+            nrm = pa[near_f] - pb[near_f]
+            nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
+            Jf = J_all[n_main:]
+            Jd = np.einsum("pc,pcn->pn", nrm, Jf[:m_] - Jf[m_:])
+            sep = -depth[near_f]
+            lbf = np.minimum(-st.margin, sep)
+            C_blocks.append(_pad(-Jd, nv))
+            d_blocks.append(sep - lbf)
         # bounds: joint limits and speeds, root speeds, the axis parameter
         dq_max = st.joint_speed * dt * (1.0 - 1e-9)        # strictly inside: checkers compare with >
         lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
@@ -616,7 +679,7 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
                  + ELASTIC_WEIGHT * sum(max(0.0, v) for v in in_viol))
         m_app = len(G_rows)
         return dict(r=r, Jr=Jr, pr=pr, Jp=Jp, A=np.array(A_rows).reshape(-1, nv), b=np.array(b_rows), w=np.array(w_rows),
-                    C=np.array(G_rows + C_rows).reshape(-1, nv), d=np.array(g_rows + d_rows), m_app=m_app,
+                    C=np.concatenate(C_blocks, 0), d=np.concatenate(d_blocks), m_app=m_app,
                     vlo=vlo, vhi=vhi, h=h,
                     gap=np.where(movable, sd_c - cr, sd_c),
                     objective=objective, viol=viol, merit=merit)
@@ -632,7 +695,7 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             Hm = 2 * (L['Jr'].T @ L['Jr'] + L['Jp'].T @ L['Jp']) + lm * damp
             g = 2 * (L['Jr'].T @ L['r'] + L['Jp'].T @ L['pr'])
         lo, hi = np.maximum(L['vlo'], -4 * base), np.minimum(L['vhi'], 4 * base)
-        C = np.concatenate([L['C'], np.eye(nv), -np.eye(nv)], 0)
+        C = np.concatenate([L['C'], C_box], 0)
         d = np.concatenate([L['d'], hi, -lo])
         dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
         if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities

@@ -31,7 +31,8 @@ import numpy as np
 
 from torchhand.kernels import kinematics as _kin
 
-__all__ = ["TreeOrder", "TreeState", "point_jacobian", "torques_and_derivatives", "tree_order", "tree_state"]
+__all__ = ["TreeOrder", "TreeState", "point_jacobian", "static_torques", "torques_and_derivatives", "tree_order",
+           "tree_state"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -156,10 +157,14 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _joint_columns(order: TreeOrder, st: TreeState, links: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """d x / d q of world points x (P, 3) on ``links`` (P,): (P, D, 3), zero for joints that do not move them."""
-    a = st.axis[None]                                                        # (1, D, 3)
-    cols = np.where(order.hinge[None, :, None], _cross(a, x[:, None, :] - st.anchor[None]), a)
-    return cols * order.support[links][:, :, None]
+    """d x / d q of world points x (P, 3) on ``links`` (P,): (P, D, 3), zero for joints that do not move them
+    (evaluated for the (point, joint) pairs of the support only: a point moves with the few joints above its link)."""
+    P, D = x.shape[0], st.axis.shape[0]
+    pi, ji = np.nonzero(order.support[links])                                # the supporting pairs
+    a = st.axis[ji]
+    cols = np.zeros((P, D, 3))
+    cols[pi, ji] = np.where(order.hinge[ji][:, None], _cross(a, x[pi] - st.anchor[ji]), a)
+    return cols
 
 
 def point_jacobian(order: TreeOrder, st: TreeState, links, x: np.ndarray) -> np.ndarray:
@@ -200,25 +205,8 @@ def torques_and_derivatives(order: TreeOrder, st: TreeState, links, h: np.ndarra
     H = links.shape[0]
     D = st.axis.shape[0]
     N = 6 + D
-    T = st.T
-    L = T.shape[0]
-    mass, com = order.mass, order.com
-    g = np.asarray(gravity, dtype=np.float64)
-    h = np.asarray(h, dtype=np.float64).reshape(H, 3)
     f = np.asarray(f, dtype=np.float64).reshape(H, 3)
-    # every force at its world point: the H contacts, then the L links' weights at their centres of mass
-    all_links = np.concatenate([links, np.arange(L)])
-    local = np.concatenate([h, com], 0)
-    Tl = T[all_links]
-    x = np.einsum("pij,pj->pi", Tl[:, :3, :3], local) + Tl[:, :3, 3]
-    F = np.concatenate([f, -mass[:, None] * g[None]], 0)                     # (P, 3)
-    Jc = _joint_columns(order, st, all_links, x)                             # (P, D, 3)
-    r = x - st.origin
-    u = np.zeros(N)
-    u[0:3] = _cross(r, F).sum(0)
-    u[3:6] = F.sum(0)
-    Jd = Jc.transpose(1, 0, 2).reshape(D, -1)                                # (D, P * 3)
-    u[6:] = Jd @ F.reshape(-1)
+    u, F, Jc, r, Jd = _static_force(order, st, links, h, f, gravity)
     G = _cross(st.axis[None], F[:, None, :])                               # a_k x f_i, (P, D, 3)
     M = Jd @ G.transpose(1, 0, 2).reshape(D, -1).T                           # J_j(p_i) . (a_k x f_i)
     hk = order.hinge.astype(np.float64)
@@ -235,3 +223,39 @@ def torques_and_derivatives(order: TreeOrder, st: TreeState, links, h: np.ndarra
         sup = order.support[links] & order.hinge[None, :]                   # (H, D)
         du_dp[:, 6:, :] = -G[:H] * sup[:, :, None]
     return u, dq, du_dp
+
+
+def _static_force(order: TreeOrder, st: TreeState, links: np.ndarray, h, f: np.ndarray, gravity):
+    """u and the pieces its derivatives reuse: (u (6 + D,), F (P, 3) the forces, Jc (P, D, 3) their points' joint
+    columns, r (P, 3) their points relative to the root origin, Jd (D, P * 3) = Jc flattened per joint); P = H + L,
+    the H contacts first, then the L links' weights at their centres of mass."""
+    H = links.shape[0]
+    D = st.axis.shape[0]
+    T = st.T
+    L = T.shape[0]
+    mass, com = order.mass, order.com
+    g = np.asarray(gravity, dtype=np.float64)
+    h = np.asarray(h, dtype=np.float64).reshape(H, 3)
+    # every force at its world point: the H contacts, then the L links' weights at their centres of mass
+    all_links = np.concatenate([links, np.arange(L)])
+    local = np.concatenate([h, com], 0)
+    Tl = T[all_links]
+    x = np.einsum("pij,pj->pi", Tl[:, :3, :3], local) + Tl[:, :3, 3]
+    F = np.concatenate([f, -mass[:, None] * g[None]], 0)                     # (P, 3)
+    Jc = _joint_columns(order, st, all_links, x)                             # (P, D, 3)
+    r = x - st.origin
+    u = np.zeros(6 + D)
+    u[0:3] = _cross(r, F).sum(0)
+    u[3:6] = F.sum(0)
+    Jd = Jc.transpose(1, 0, 2).reshape(D, -1)                                # (D, P * 3)
+    u[6:] = Jd @ F.reshape(-1)
+    return u, F, Jc, r, Jd
+
+
+def static_torques(order: TreeOrder, st: TreeState, links, h: np.ndarray, f: np.ndarray,
+                   gravity=(0.0, 0.0, -9.81)) -> np.ndarray:
+    """u = n(q) + sum_i J_i^T f_i at one configuration, (6 + D,): the first output of
+    :func:`torques_and_derivatives` (the same arithmetic) without the derivatives. Arguments as there."""
+    links = np.asarray(links, dtype=np.int64).reshape(-1)
+    f = np.asarray(f, dtype=np.float64).reshape(links.shape[0], 3)
+    return _static_force(order, st, links, h, f, gravity)[0]

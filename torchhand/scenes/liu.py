@@ -7,7 +7,7 @@ hand-object friction 0.8, object-table friction 0.4, minimum-jerk profiles, no r
 
 1. rest (6 frames): the object at rest, the hand holding it (the method starts from the grasp's equilibrium);
 2. motion: the paper's example (a drag along the table, a lift, a tip about a bottom edge, a lift and hold against
-   an external push);
+   an external push, a two-finger roll of a small cylinder about its own axis);
 3. rest (6 frames or more): the object at rest again (in ``liu-push`` the object stays lifted and the push ends
    6 frames before the last frame).
 
@@ -20,6 +20,13 @@ normal onto the grasp), on which ``scripts/make_liu_grasps.py`` runs ``torchhand
 (``torchhand grasp from-result``). All four scenes hold the same box at the same frame-0 pose with the same hand,
 so their packaged grasps are the same: the approach's frame 7, the wrist 1 cm farther along the palm normal than
 the track's, seven contact links (thumb distal; index proximal, middle, distal; little proximal, middle, distal).
+
+``liu-roll`` differs: a small cylinder held in the air, 20 cm above the table, by a thumb-index pinch. Its grasp is
+built, not searched: :func:`roll_pinch` gives a fixed pinch posture and the cylinder's place between the two distal
+capsules, and its hand track holds the cylinder rigidly with that pinch (``scripts/make_liu_grasps.py``,
+``make_roll``, snaps it so that only the two fingertips touch). Two point contacts cannot make a torque about the
+line through them: the planner's deficit allowance (``torchhand.manipulation.plan.BALANCE_ALLOWANCE``) lets the
+pinch hold the cylinder (docs/manipulation.md, "Built-in examples").
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
 
 from ..errors import InputValueError
 from ..objects import RigidObject
@@ -48,7 +56,8 @@ from .builtin import (
     _wrist_track,
 )
 
-__all__ = ["LIU_SCENES", "PUSH_FORCE", "REST", "approach_scene", "grasp_path"]
+__all__ = ["LIU_SCENES", "PUSH_FORCE", "REST", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
+           "approach_scene", "grasp_path", "roll_pinch"]
 
 REST = 6
 """Frames at rest before each motion starts (and at least as many after it ends)."""
@@ -85,17 +94,19 @@ def liu_drag() -> Scene:
     return _held("liu-drag", _DRAG, obj, pose)
 
 
-_LIFT = ("Liu 2009 heavy lift: a 9 x 7 x 6 cm box (1.5 kg) held from above by one right hand is lifted 10 cm off "
-         "the table in 1 s and held, near the most its grasp can hold within the 30 N contact-force limit.")
+_LIFT = ("Liu 2009 heavy lift: a 9 x 7 x 6 cm box (2.5 kg) held from above by one right hand is lifted 10 cm off "
+         "the table in 1 s and held; its grasp cannot hold it within the 30 N contact-force limit, so the planner "
+         "adds a contact.")
 
 
 @register_scene("liu-lift", _LIFT)
 def liu_lift() -> Scene:
-    """Liu's heavy lift adds contacts when the grasp cannot hold the box. With the packaged grasp (seven contact
-    links) it needs none: the thumb's normal force reaches about 26 N. A grasp with fewer contacts (the approach's
-    frame 6, ``scripts/make_liu_grasps.py``) makes the planner add contacts from about frame 11."""
+    """Liu's heavy lift adds contacts when the grasp cannot hold the box (Liu: 1.5 kg, with the contacts of the
+    paper's grasp). The packaged grasp (seven contact links) lifts 1.5 kg without one (the thumb's normal force
+    reaches about 26 N of the 30 N limit), so this box weighs 2.5 kg: the planner adds ring_proximal at the start of
+    the lift, and it carries force once it touches."""
     T = 48
-    obj, z0 = _box(1.5)
+    obj, z0 = _box(2.5)
     up = 0.10 * _ramp(T, REST, REST + 30)
     pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * up, 0 * up, z0 + up], axis=-1))
     return _held("liu-lift", _LIFT, obj, pose)
@@ -138,7 +149,107 @@ def liu_push() -> Scene:
     return dataclasses.replace(scene, external_wrench=torch.tensor(wrench, dtype=torch.float64))
 
 
-LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push")
+# --- roll: a two-finger pinch rolls a small cylinder about its own axis ----------------------------------------
+
+ROLL_RADIUS = 0.02
+"""Radius of the liu-roll cylinder, metres."""
+ROLL_HEIGHT = 0.03
+"""Height (axial length) of the liu-roll cylinder, metres."""
+ROLL_DEGREES = 40.0
+"""Peak rotation of the liu-roll cylinder about its own axis, degrees."""
+ROLL_CENTRE = (0.0, 0.0, TABLE_HEIGHT + 0.20)
+"""World position of the liu-roll cylinder's centre (every frame), metres: 20 cm above the table."""
+
+_ROLL_SECTIONS = 64          # facets around the cylinder: the flat facets deviate 0.024 mm from the circle
+_ROLL_FRAMES = 27            # frames of each ramp (0 -> +40 degrees, +40 -> 0)
+
+# The pinch posture of the default right hand (degrees): thumb and index from a coarse search over their joint
+# ranges refined by least squares with every joint kept at least 4 degrees inside its limits
+# (scripts/make_liu_grasps.py, ``make_roll``), rounded to 0.1 degree; the middle, ring and little fingers curled into
+# the palm, out of the way. A 4 cm cylinder is near the edge of this thumb's reach: without the 4-degree margin six
+# thumb and index joints end at their limits, and the fingers can then hardly move in the roll's direction.
+_ROLL_POSTURE = {
+    "thumb_cmc_flex": 21.5, "thumb_cmc_abd": 26.0, "thumb_cmc_roll": -26.0, "thumb_mcp_flex": -6.0,
+    "thumb_mcp_abd": 11.0, "thumb_ip": 5.7,
+    "index_mcp_abd": 16.0, "index_mcp_flex": 49.7, "index_pip": 23.0, "index_dip": -1.0,
+    "middle_mcp_flex": 85.0, "middle_pip": 100.0, "middle_dip": 60.0,
+    "ring_mcp_flex": 85.0, "ring_pip": 100.0, "ring_dip": 60.0,
+    "little_mcp_flex": 85.0, "little_pip": 100.0, "little_dip": 60.0,
+}
+# Where each distal capsule touches: the fraction s of its axis (0 at the joint, 1 at the fingertip end).
+_ROLL_TOUCH = {"thumb_distal": 0.79, "index_distal": 0.74}
+
+
+def roll_pinch(hand=None) -> tuple[np.ndarray, np.ndarray]:
+    """The liu-roll pinch: the default right hand's joint angles and the cylinder in the hand frame.
+
+    The posture is ``_ROLL_POSTURE`` (the other joints at their rest angles). The cylinder is placed between the
+    two distal capsules: with P_t, P_i the points at ``_ROLL_TOUCH`` on the thumb's and the index's capsule axes,
+    m the mean direction of the two axes (they are within 14 degrees of parallel), u the unit component of
+    ``P_i - P_t`` normal to m and a = m x u, the cylinder's axis is a (about the hand's -y, the palm's lateral
+    direction), its centre ``P_t + (ROLL_RADIUS + r_thumb) u`` moved along a to halfway between the two points, so
+    the thumb capsule touches it and the index capsule is 0.5 mm from it (snapping closes that gap).
+
+    Args:
+        hand: the default right hand (built when None)
+
+    Returns:
+        (q (D,) radians, T_hand_object (4, 4)): the object frame has its origin at the cylinder's centre, z along
+        its axis and x along u (from the thumb's contact toward the index's).
+    """
+    from ..hand import default_hand
+
+    hand = default_hand() if hand is None else hand
+    names = list(hand.joint_names)
+    q = hand.q_rest.detach().cpu().double().numpy().copy()
+    for name, deg in _ROLL_POSTURE.items():
+        q[names.index(name)] = math.radians(deg)
+    T = hand.forward_kinematics(torch.as_tensor(q, dtype=hand.dtype)[None])[0].detach().cpu().double().numpy()
+    a_loc, b_loc = hand.capsule_a.detach().cpu().double().numpy(), hand.capsule_b.detach().cpu().double().numpy()
+    r = hand.capsule_radius.detach().cpu().double().numpy()
+    links = [list(hand.link_names).index(n) for n in _ROLL_TOUCH]
+    P = [T[l, :3, :3] @ (a_loc[l] + s * (b_loc[l] - a_loc[l])) + T[l, :3, 3]
+         for l, s in zip(links, _ROLL_TOUCH.values())]
+    x = [T[l, :3, 0] for l in links]
+    m = x[0] + np.sign(x[0] @ x[1]) * x[1]
+    m /= np.linalg.norm(m)
+    w = P[1] - P[0]
+    u = w - (w @ m) * m
+    u /= np.linalg.norm(u)
+    a = np.cross(m, u)
+    centre = P[0] + (ROLL_RADIUS + r[links[0]]) * u + 0.5 * (w @ a) * a
+    T_hand_object = np.eye(4)
+    T_hand_object[:3, :3] = np.stack([u, np.cross(a, u), a], axis=1)
+    T_hand_object[:3, 3] = centre
+    return q, T_hand_object
+
+
+_ROLL = ("Liu 2009 rotate: a small cylinder (radius 2 cm, height 3 cm, 0.05 kg) held in the air by a two-finger "
+         "pinch (thumb and index fingertips on opposite sides of its curved surface, thumb below, index above) is "
+         "rotated 40 degrees about its own horizontal axis in 0.9 s and back in 0.9 s.")
+
+
+@register_scene("liu-roll", _ROLL)
+def liu_roll() -> Scene:
+    """The cylinder's centre stays at ``ROLL_CENTRE``; its axis (object z) is the world x axis and the pinch line
+    (object x, thumb to index) points up, so the thumb holds it from below and the weight lies along the pinch line.
+    Two point contacts cannot make a torque about the line through them; the weight needs one only in proportion to
+    the line's tilt from vertical times its offset from the centre of mass (1.7 degrees and 0.48 mm for the packaged
+    grasp, whose contacts the hand's surface samples place). The hand track holds the cylinder rigidly with the pinch
+    of :func:`roll_pinch` (the motion without rolling)."""
+    T = 2 * REST + 2 * _ROLL_FRAMES
+    mesh = trimesh.creation.cylinder(radius=ROLL_RADIUS, height=ROLL_HEIGHT, sections=_ROLL_SECTIONS)
+    obj = RigidObject.from_trimesh(mesh, mass=0.05, name="cylinder")
+    theta = math.radians(ROLL_DEGREES) * (_ramp(T, REST, REST + _ROLL_FRAMES)
+                                          - _ramp(T, REST + _ROLL_FRAMES, REST + 2 * _ROLL_FRAMES))
+    R0 = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]]).T   # columns: object x, y, z in the world
+    R = R0 @ _rot("z", theta)
+    pose = _poses(R, np.tile(ROLL_CENTRE, (T, 1)))
+    _, T_hand_object = roll_pinch()
+    return _scene("liu-roll", _ROLL, obj, pose, [("right", pose @ np.linalg.inv(T_hand_object))])
+
+
+LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll")
 """The Liu 2009 built-in scenes, each with a packaged grasp."""
 
 
