@@ -103,6 +103,7 @@ class SDFGrid:
         padding: float | None = None,
         cache_dir: str | os.PathLike | None = None,
         progress: bool = True,
+        dtype: torch.dtype = torch.float32,
     ) -> "SDFGrid":
         """Build (or load from the disk cache) the SDF grid of ``mesh``.
 
@@ -113,9 +114,11 @@ class SDFGrid:
                 6 * voxel_size)``. The grid box is then rounded up so that each axis has 8 m + 1 nodes.
             cache_dir: cache directory; default ``$TORCHHAND_CACHE`` or ``~/.cache/torchhand/sdf``.
             progress: show a tqdm progress bar on long builds.
+            dtype: the grid's dtype; the node values are float32 (as stored in the cache) cast to it, the same
+                values as ``from_mesh(...).to(dtype=dtype)`` without building the corner table twice.
 
         Returns:
-            a float32 CPU grid (use :meth:`to` for another device or dtype).
+            a CPU grid (use :meth:`to` for another device).
 
         Raises:
             InputTypeError, InputValueError: bad ``mesh``, ``voxel_size`` or ``padding``.
@@ -139,8 +142,8 @@ class SDFGrid:
             with _one_thread():
                 values = _build_values(vertices, faces, origin, voxel_size, shape, progress)
             _write_cache(path, values, origin, voxel_size)
-        return cls(values=torch.from_numpy(values.astype(np.float32)),
-                   origin=torch.from_numpy(origin.astype(np.float32)), voxel_size=float(voxel_size))
+        return cls(values=torch.from_numpy(values.astype(np.float32)).to(dtype),
+                   origin=torch.from_numpy(origin.astype(np.float32)).to(dtype), voxel_size=float(voxel_size))
 
     # ------------------------------------------------------------------------------------------------ queries
     def query(self, points: torch.Tensor, *, check: bool = False) -> torch.Tensor:

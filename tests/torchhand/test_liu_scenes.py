@@ -44,7 +44,7 @@ def test_scene_motions():
     drag = builtin_scene("liu-drag").object_pose.numpy()
     assert np.allclose(drag[-1, :3, 3] - drag[0, :3, 3], [0.12, 0, 0], atol=1e-12)
     lift = builtin_scene("liu-lift")
-    assert lift.object.mass == 2.5
+    assert lift.object.mass == 2.0
     assert np.isclose(lift.object_pose[-1, 2, 3] - lift.object_pose[0, 2, 3], 0.10, atol=1e-12)
     pivot = builtin_scene("liu-pivot")
     P = pivot.object_pose.numpy()
@@ -168,9 +168,9 @@ def test_drag_end_to_end(tmp_path):
 
 
 def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):
-    """Liu's heavy lift (Sec. 6): the grasp cannot hold the box with its own contacts within the 30 N limit, so the
-    planner adds one (Sec. 4.3), the motion completes and every frame passes ``torchhand check`` (the checker's 2 mm
-    contact-hand bound covers the added contact whenever it carries force). The same lift of a 1.5 kg box (a mass
+    """Liu's heavy lift (Sec. 6): the grasp cannot hold the 2 kg box with its own contacts within the 30 N limit, so
+    the planner adds contacts (Sec. 4.3), the motion completes and every frame passes ``torchhand check`` (the
+    checker's 2 mm contact-hand bound covers an added contact whenever it carries force). The same lift of a 1.5 kg box (a mass
     override, recorded as ``variant_mass`` so the checker balances it with its own weight) needs no contact."""
     from torchhand.check import check_result
     from torchhand.manipulation import ManipulationSettings, manipulate, write_manipulation
@@ -184,7 +184,7 @@ def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):
     added = sorted({str(z["contact_link_name"][z["contact_link"][t, k]])
                     for t, k in zip(*np.nonzero(z["contact_added"]))})
     f_added = max(float(np.linalg.norm(z["contact_force"][t, k])) for t, k in zip(*np.nonzero(z["contact_added"])))
-    print(f"liu-lift 2.5 kg: {stats['added_contacts']} contact(s) added {added}, largest force {f_added:.1f} N, "
+    print(f"liu-lift 2.0 kg: {stats['added_contacts']} contact(s) added {added}, largest force {f_added:.1f} N, "
           f"{stats['deferred_contacts']} deferral(s)")
     assert stats["complete"] and stats["added_contacts"] >= 1 and f_added > 1.0 and "variant_mass" not in z.files
     res = manipulate(builtin_scene("liu-lift"), load_grasp(grasp_path("liu-lift")),

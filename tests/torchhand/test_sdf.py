@@ -99,6 +99,22 @@ def test_query_with_grad_shapes_dtypes_and_normals(sphere_grid, b, dtype):
     torch.testing.assert_close(p.grad, grad)
 
 
+def test_from_mesh_dtype_and_unchecked_query(sphere_grid, cache):
+    """``from_mesh(dtype=float64)`` holds the same values and corner table as ``from_mesh(...).to(float64)``, and
+    the unchecked query (no autograd, no point checks) returns :meth:`query_with_grad`'s values bit for bit; both
+    against the analytic sphere distance |p| - r within the grid's interpolation error."""
+    mesh, grid32 = sphere_grid
+    a = grid32.to(dtype=torch.float64)
+    b = SDFGrid.from_mesh(mesh, 0.005, cache_dir=cache, progress=False, dtype=torch.float64)
+    assert b.values.dtype == torch.float64
+    assert torch.equal(a.values, b.values) and torch.equal(a.origin, b.origin) and torch.equal(a.corners, b.corners)
+    p = torch.tensor(np.random.default_rng(0).uniform(-0.07, 0.07, (1, 200, 3)))
+    sd, g = b.query_with_grad(p)
+    sd2, g2 = b.query_with_grad_unchecked(p)
+    assert torch.equal(sd, sd2) and torch.equal(g, g2)
+    assert (sd2 - (p.norm(dim=-1) - 0.05)).abs().max() < 2e-3
+
+
 def test_query_validation(sphere_grid):
     _, grid = sphere_grid
     with pytest.raises(ShapeError, match="points"):

@@ -49,7 +49,6 @@ from . import plan as _plan
 from ..dense_qp import solve_qp_dense
 from .grasp import Grasp
 from .plan import GraspUnsuitable, PlanSettings
-from .snap import signed_distance
 from .synth import HandFrame, SynthContext, SynthSettings, synthesize_frame, torques
 from .torque_derivs import static_torques, tree_state
 
@@ -285,7 +284,7 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         x = _link_points(ts, links, h)
         Rs, os_ = pose[k][:3, :3], pose[k][:3, 3]
         p_obj = (x - os_) @ Rs
-        _, p_proj, _ = signed_distance(scene.object.mesh, p_obj)
+        p_proj = np.asarray(scene.object.mesh.nearest.on_surface(p_obj)[0])      # closest points (no sign needed)
         n_in = -ctx.object_normals(p_proj)
         p_new = prev.p.copy()
         for i in range(H):

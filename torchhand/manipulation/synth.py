@@ -187,7 +187,7 @@ class SynthContext:
 
         self.settings = settings or SynthSettings()
         self.hand = hand.to("cpu", torch.float64)
-        self.sdf = SDFGrid.from_mesh(mesh, self.settings.voxel, progress=False).to(dtype=torch.float64)
+        self.sdf = SDFGrid.from_mesh(mesh, self.settings.voxel, progress=False, dtype=torch.float64)
         self.u_bar = np.asarray(u_bar, dtype=np.float64)
         self.dt = 1.0 / float(fps)
         self.table = table_height
@@ -491,6 +491,8 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     eye_nv = np.eye(nv)
     C_box = np.concatenate([eye_nv, -eye_nv], 0)                    # the step bounds' rows of every QP
 
+    floor: dict = {}                                     # non-penetration floors, fixed at the frame's start
+
     def linearise(q, root, s):
         """Residuals, constraints and bounds at (q, root, s); also the hand points h."""
         c = np.where(movable[:, None], ca + s[:, None] * seg, start.h)    # axis points, link frame
@@ -541,8 +543,10 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             pa, pb = _closest_segment_points(a0, b0, a1, b1)
             depth = ctx.cap_r[i0] + ctx.cap_r[i1] - np.linalg.norm(pa - pb, axis=-1)
             near_f = np.flatnonzero(depth > -0.01)
+            depth_all = depth
         else:
             near_f = np.zeros(0, dtype=np.int64)
+            depth_all = None
         m_ = len(near_f)
         if m_:
             la, lb_ = ctx.pairs_np[near_f, 0], ctx.pairs_np[near_f, 1]
@@ -636,19 +640,28 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
         # the inequality rows in blocks: receding slack first (the first m_app rows), then the contacts' rows
         C_blocks = [np.array(G_rows + C_rows).reshape(-1, nv)]
         d_blocks = [np.array(g_rows + d_rows, dtype=np.float64)]
-        # non-penetration of the capsule axes (object and table); only points within 1 cm of their limit
+        # non-penetration of the capsule axes (object and table); only points within 1 cm of their limit. The
+        # floor (-margin, or the depth a point already had at the frame's start, which may not grow) is fixed at
+        # the frame's first linearisation: a point that an iterate moved in from afar is pushed back out, and the
+        # new depth counts as a violation in the merit (a step that creates it is rejected)
         ax_r = ctx.ax_radius
         lim_obj = sd_a - ax_r
-        lb = np.minimum(-st.margin, lim_obj)
+        lim_tab = ax_w[:, 2] - ax_r - ctx.table if ctx.table is not None else None
+        if not floor:
+            floor["obj"] = np.minimum(-st.margin, lim_obj)
+            floor["tab"] = np.minimum(-st.margin, lim_tab) if lim_tab is not None else None
+            floor["ff"] = np.minimum(-st.margin, -depth_all) if depth_all is not None else None
+        lb = floor["obj"]
         near = np.flatnonzero(lim_obj < 0.01)
         C_blocks.append(_pad(-np.einsum("pc,pcn->pn", g_a[near], Ja[near]), nv))
         d_blocks.append(lim_obj[near] - lb[near])
-        if ctx.table is not None:
-            lim_tab = ax_w[:, 2] - ax_r - ctx.table
-            lbt = np.minimum(-st.margin, lim_tab)
+        pen = [np.maximum(lb - lim_obj, 0.0).max(initial=0.0)]
+        if lim_tab is not None:
+            lbt = floor["tab"]
             near = np.flatnonzero(lim_tab < 0.01)
             C_blocks.append(_pad(-Ja[near, 2], nv))
             d_blocks.append(lim_tab[near] - lbt[near])
+            pen.append(np.maximum(lbt - lim_tab, 0.0).max(initial=0.0))
         # finger-finger separation (addition (a)): capsule pairs of different fingers within 1 cm keep their axis
         # distance >= r_a + r_b - margin along the line between their closest axis points; a pair already deeper
         # may not go deeper
@@ -658,9 +671,11 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             Jf = J_all[n_main:]
             Jd = np.einsum("pc,pcn->pn", nrm, Jf[:m_] - Jf[m_:])
             sep = -depth[near_f]
-            lbf = np.minimum(-st.margin, sep)
+            lbf = floor["ff"][near_f]
             C_blocks.append(_pad(-Jd, nv))
             d_blocks.append(sep - lbf)
+            pen.append(np.maximum(lbf - sep, 0.0).max(initial=0.0))
+        in_viol.extend(float(v) for v in pen)
         # bounds: joint limits and speeds, root speeds, the axis parameter
         dq_max = st.joint_speed * dt * (1.0 - 1e-9)        # strictly inside: checkers compare with >
         lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
