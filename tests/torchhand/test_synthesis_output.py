@@ -121,7 +121,10 @@ def test_an_interrupted_run_leaves_its_solutions_readable(tmp_path, sig):
     out = tmp_path / "k"
     cmd = [sys.executable, "-m", "torchhand.cli", "synthesize", "box-turn", "--out", str(out), *FRAMES,
            "--max-nodes", "200000", "--solutions", "50", "--seed", "0", "--no-progress"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C's default action in the child, whatever this process inherited: a suite started as a background job
+    # of a non-interactive shell ignores SIGINT, the child would inherit that and run to completion (exit 0)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 600
         while not (out / "solutions" / "sol_000.npz").exists():
