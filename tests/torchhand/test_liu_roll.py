@@ -19,6 +19,8 @@ from torchhand.manipulation.plan import BALANCE_ALLOWANCE, plan_motion
 from torchhand.scenes import builtin_scene
 from torchhand.scenes.liu import ROLL_HEIGHT, ROLL_RADIUS, grasp_path
 
+from .test_plan import newton_euler
+
 MU, F_MAX = 0.8, 30.0
 
 
@@ -152,22 +154,11 @@ def test_two_point_pinch_cannot_turn_about_its_line(pinch):
 
 
 def _required_wrench(scene) -> np.ndarray:
-    """Newton-Euler wrench the contacts must apply, (T, 6): central differences of the poses (one-sided at the
-    ends), force and torque about the centre of mass, world."""
-    P = scene.object_pose.double().numpy()
+    """Newton-Euler wrench the contacts must apply, (T, 6), recomputed by test_plan's NumPy/SciPy reference."""
     obj = scene.object
-    m, fps = obj.mass, scene.fps
-    R = P[:, :3, :3]
-    c = R @ np.asarray(obj.com) + P[:, :3, 3]
-    acc = np.gradient(np.gradient(c, 1 / fps, axis=0), 1 / fps, axis=0)
-    Rd = np.gradient(R, 1 / fps, axis=0)
-    w_hat = np.einsum("tij,tkj->tik", Rd, R)
-    omega = np.stack([w_hat[:, 2, 1], w_hat[:, 0, 2], w_hat[:, 1, 0]], axis=1)
-    alpha = np.gradient(omega, 1 / fps, axis=0)
-    I = np.einsum("tij,jk,tlk->til", R, np.asarray(obj.inertia), R)
-    torque = np.einsum("tij,tj->ti", I, alpha) + np.cross(omega, np.einsum("tij,tj->ti", I, omega))
-    force = m * (acc - scene.gravity.double().numpy())
-    return np.concatenate([force, torque], axis=1)
+    wrench, _ = newton_euler(scene.object_pose.double().numpy(), obj.com, obj.mass, obj.inertia, scene.fps,
+                             scene.gravity.double().numpy())
+    return wrench
 
 
 def _produced_wrench(plan) -> np.ndarray:

@@ -73,6 +73,11 @@ def _held(name: str, description: str, obj: RigidObject, pose: np.ndarray) -> Sc
     return _scene(name, description, obj, pose, [("right", pose @ _FROM_ABOVE)])
 
 
+def _upright(centre: np.ndarray) -> np.ndarray:
+    """Poses (T, 4, 4) of an object that keeps its rest orientation, its origin at ``centre`` (T, 3)."""
+    return _poses(np.broadcast_to(np.eye(3), (len(centre), 3, 3)), centre)
+
+
 def _box(mass: float, name: str = "box") -> tuple[RigidObject, float]:
     mesh, z0 = _resting_box(_BOX)
     return RigidObject.from_trimesh(mesh, mass=mass, name=name), z0
@@ -90,7 +95,7 @@ def liu_drag() -> Scene:
     T = 48
     obj, z0 = _box(0.5)
     s = 0.12 * _ramp(T, REST, T - 1 - REST)
-    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([s, 0 * s, z0 + 0 * s], axis=-1))
+    pose = _upright(np.stack([s, 0 * s, z0 + 0 * s], axis=-1))
     return _held("liu-drag", _DRAG, obj, pose)
 
 
@@ -109,7 +114,7 @@ def liu_lift() -> Scene:
     T = 48
     obj, z0 = _box(2.0)
     up = 0.10 * _ramp(T, REST, REST + 30)
-    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * up, 0 * up, z0 + up], axis=-1))
+    pose = _upright(np.stack([0 * up, 0 * up, z0 + up], axis=-1))
     return _held("liu-lift", _LIFT, obj, pose)
 
 
@@ -142,7 +147,7 @@ def liu_push() -> Scene:
     T = 60
     obj, z0 = _box(0.3)
     up = 0.06 * _ramp(T, REST, REST + 18)
-    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * up, 0 * up, z0 + up], axis=-1))
+    pose = _upright(np.stack([0 * up, 0 * up, z0 + up], axis=-1))
     push = PUSH_FORCE * (_ramp(T, 26, 34) - 2.0 * _ramp(T, 36, 44) + _ramp(T, 46, 54))
     wrench = np.zeros((T, 6))
     wrench[:, 1] = push
