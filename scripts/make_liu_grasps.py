@@ -17,6 +17,8 @@ byte-identical.
 ``liu-roll`` (a two-finger pinch on a small cylinder) is made differently, by :func:`make_roll`: a fixed pinch
 posture with the cylinder placed between the thumb's and the index's distal capsules
 (:func:`torchhand.scenes.liu.roll_pinch`), snapped with a 2 mm tolerance so that only the two fingertips touch.
+``liu-press`` likewise, by :func:`make_press`: a fitted posture with the thumb, index and middle fingertips on the
+plate's top face (:func:`torchhand.scenes.liu.press_pose`), snapped with the default 5 mm tolerance.
 
     python scripts/make_liu_grasps.py [--only liu-drag ...] [--work DIR] [--check]
 
@@ -38,7 +40,7 @@ from torchhand.hand import default_hand
 from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
 from torchhand.scene_io import export_scene_dir
 from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import _GRASPS, LIU_SCENES, approach_scene, roll_pinch
+from torchhand.scenes.liu import _GRASPS, LIU_SCENES, approach_scene, press_pose, roll_pinch
 
 SYNTH = ["--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000", "--solutions", "1",
          "--seed", "0", "--no-progress", "--threads", "1"]
@@ -88,9 +90,43 @@ def make_roll(work: Path | None = None) -> Path:
     return save_grasp(snapped, _GRASPS / "liu-roll.npz", overwrite=True)
 
 
+PRESS_CONTACTS = {"thumb_distal", "index_distal", "middle_distal"}
+
+
+def make_press(work: Path | None = None) -> Path:
+    """The liu-press grasp, deterministic and without search (``work`` is not used):
+
+    1. the press posture and the wrist over the plate (``press_pose``: palm down, the thumb, index and middle
+       fingertips on the top face around its centre, the ring and little fingers curled above it);
+    2. ``snap_grasp`` with the default 5 mm tolerance: the three distal links are the only contacts (gaps under
+       1 mm, closed by the finger IK).
+
+    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a least-squares fit of
+    the wrist and the thumb, index and middle joints, starting from a flexed hand 6 cm above the plate, with each
+    fingertip capsule tangent to the top face near a chosen point ((-25, 8), (15, 14), (18, -10) mm: a triangle
+    around the centre, so that the fingertips can balance the spring's torque), every other link at least 4 mm from
+    the plate, every joint at least 3 degrees inside its limits and a small pull toward the starting angles.
+    """
+    scene = builtin_scene("liu-press")
+    hand = default_hand()
+    q, T_object_hand = press_pose(hand)
+    grasp = Grasp(hand="default", side="right", joint_names=tuple(hand.joint_names), q=q,
+                  wrist_in_object=T_object_hand, frame=0, length=0.19)
+    snapped, report = snap_grasp(grasp, grasp_hand(grasp), scene.object.mesh)
+    for line in report.lines():
+        print(f"liu-press snap: {line}")
+    if set(snapped.contact_links) != PRESS_CONTACTS:
+        raise SystemExit(f"liu-press: expected {', '.join(sorted(PRESS_CONTACTS))} as contacts, got "
+                         f"{', '.join(snapped.contact_links)}")
+    _GRASPS.mkdir(exist_ok=True)
+    return save_grasp(snapped, _GRASPS / "liu-press.npz", overwrite=True)
+
+
 def make(name: str, work: Path) -> Path:
     if name == "liu-roll":
         return make_roll(work)
+    if name == "liu-press":
+        return make_press(work)
     scene = builtin_scene(name)
     sdir = export_scene_dir(approach_scene(scene), work / f"{name}-approach", overwrite=True)
     res = work / f"{name}-synth"

@@ -17,7 +17,8 @@ from torchhand.hand.mount import track_hand
 from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
 from torchhand.scenes import builtin_scene, list_builtin_scenes
 from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
-from torchhand.scenes.liu import LIU_SCENES, grasp_path
+from torchhand.scenes.liu import (LIU_SCENES, PRESS_DEPTH, PRESS_HEIGHT, PRESS_PRELOAD, PRESS_STIFFNESS,
+                                   grasp_path)
 
 
 @pytest.mark.parametrize("name", LIU_SCENES)
@@ -32,6 +33,8 @@ def test_scene_builds_deterministically(name):
     lowest = a.object.mesh.copy().apply_transform(a.object_pose[0].numpy()).vertices[:, 2].min()
     if name == "liu-roll":
         assert lowest >= TABLE_HEIGHT + 0.15
+    elif name == "liu-press":
+        assert abs(lowest - (TABLE_HEIGHT + PRESS_HEIGHT)) < 1e-9        # on its (undrawn) spring
     else:
         assert abs(lowest - TABLE_HEIGHT) < 1e-9
 
@@ -88,6 +91,8 @@ def test_packaged_grasp_touches_the_object(name):
     assert g.side == "right" and g.hand == "default" and len(g.contact_links) >= 2
     if name == "liu-roll":
         assert set(g.contact_links) == {"thumb_distal", "index_distal"}
+    elif name == "liu-press":
+        assert set(g.contact_links) == {"thumb_distal", "index_distal", "middle_distal"}
     else:
         assert len(g.contact_links) >= 3
     mesh = scene.object.mesh
@@ -143,8 +148,16 @@ def test_drag_end_to_end(tmp_path):
     print(f"sliding table contacts: {n}, smallest cos(friction, -velocity) {worst:.4f}")
     assert n > 0 and worst >= 0.95
     # static hand contacts: tangential speed of the material points
-    g = load_grasp(grasp_path("liu-drag"))
-    hand = grasp_hand(g)
+    pairs, slip = _static_slip(z, grasp_hand(load_grasp(grasp_path("liu-drag"))))
+    print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
+    assert pairs >= pose.shape[0] and slip <= 1e-3
+
+
+def _static_slip(z, hand) -> tuple[int, float]:
+    """(number of static contact-frames, their largest tangential speed in m/s): the material points of each hand
+    contact that is static at frame t and was in contact at t-1, placed by FK of the stored motion (the hand point)
+    and by the stored object pose (the object point), differenced over the frame."""
+    pose = z["object_pose"]
     names = [str(s) for s in z["contact_link_name"]]
     link_ids = np.array([list(hand.link_names).index(s) for s in names])
     slip, pairs = 0.0, 0
@@ -163,8 +176,47 @@ def test_drag_end_to_end(tmp_path):
         nrm = z["contact_normal"][t, ks]
         vt = vel - (vel * nrm).sum(-1, keepdims=True) * nrm
         slip = max(slip, float(np.linalg.norm(vt, axis=-1).max()))
+    return pairs, slip
+
+
+def test_press_motion_and_spring():
+    """liu-press: the plate goes straight down by PRESS_DEPTH and back without turning, is still for the first and
+    last 6 frames, and the external wrench is the spring's force, straight up at the centre: its weight plus the
+    preload plus stiffness x compression, the compression read off the poses."""
+    scene = builtin_scene("liu-press")
+    P = scene.object_pose.numpy()
+    assert np.abs(P[:, :3, :3] - np.eye(3)).max() == 0 and np.abs(P[:, :2, 3]).max() == 0
+    d = P[0, 2, 3] - P[:, 2, 3]
+    assert abs(d.max() - PRESS_DEPTH) < 1e-12 and np.abs(d[:6]).max() == 0 and np.abs(d[-6:]).max() < 1e-12
+    w = scene.external_wrench.numpy()
+    spring = scene.object.mass * 9.81 + PRESS_PRELOAD + PRESS_STIFFNESS * d
+    assert np.abs(w[:, 2] - spring).max() < 1e-9 and np.abs(w[:, [0, 1, 3, 4, 5]]).max() == 0
+
+
+def test_press_end_to_end(tmp_path):
+    """``torchhand manipulate liu-press`` then ``torchhand check``: it completes without added contacts and passes.
+    The fingertips' contact forces add up to what the spring needs beyond the plate's weight and its acceleration
+    (m (a - g) - spring, from the scene's constants and the poses), their normal force grows with the compression,
+    and the static contacts slip at most 1 mm/s."""
+    out = tmp_path / "press"
+    assert cli(["manipulate", "liu-press", "--out", str(out), "--threads", "1", "--no-progress"]) == 0
+    assert cli(["check", str(out)]) == 0
+    z = np.load(out / "solutions" / "sol_000.npz")
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"] and stats["added_contacts"] == 0
+    pose = z["object_pose"]
+    d = pose[0, 2, 3] - pose[:, 2, 3]
+    m = builtin_scene("liu-press").object.mass
+    acc = np.gradient(np.gradient(pose[:, 2, 3], 1.0 / FPS), 1.0 / FPS)
+    need = m * (acc + 9.81) - (m * 9.81 + PRESS_PRELOAD + PRESS_STIFFNESS * d)       # z force the hand must add
+    got = (z["contact_force"][..., 2] * z["contact_mask"]).sum(-1)
+    err = np.abs(got - need)[2:-2].max()                   # np.gradient's one-sided ends differ from the scene's
+    print(f"liu-press: hand force {got.min():.2f} N at the bottom (needs {need.min():.2f} N), largest difference "
+          f"{err:.3f} N; {stats['frames_per_second']:.1f} frames/s")
+    assert err < 0.05 * np.abs(need).max() and got.min() < -PRESS_STIFFNESS * PRESS_DEPTH
+    pairs, slip = _static_slip(z, grasp_hand(load_grasp(grasp_path("liu-press"))))
     print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
-    assert pairs >= pose.shape[0] and slip <= 1e-3
+    assert pairs >= 3 * (pose.shape[0] - 1) - 3 and slip <= 1e-3
 
 
 def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):

@@ -27,6 +27,10 @@ capsules, and its hand track holds the cylinder rigidly with that pinch (``scrip
 ``make_roll``, snaps it so that only the two fingertips touch). Two point contacts cannot make a torque about the
 line through them: the planner's deficit allowance (``torchhand.manipulation.plan.BALANCE_ALLOWANCE``) lets the
 pinch hold the cylinder (docs/manipulation.md, "Built-in examples").
+
+``liu-press`` differs too: the paper's deformable object is a rigid plate on a linear spring to the table (the
+spring's force is the scene's ``external_wrench``), pressed from above by the thumb, index and middle fingertips of
+a fitted posture (:func:`press_pose`, ``make_press`` in the script).
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ import trimesh
 
 from ..errors import InputValueError
 from ..objects import RigidObject
-from ..scene import Scene
+from ..scene import DEFAULT_GRAVITY, Scene
 from . import register_scene
 from .builtin import (
     _APPROACH,
@@ -56,8 +60,9 @@ from .builtin import (
     _wrist_track,
 )
 
-__all__ = ["LIU_SCENES", "PUSH_FORCE", "REST", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
-           "approach_scene", "grasp_path", "roll_pinch"]
+__all__ = ["LIU_SCENES", "PRESS_DEPTH", "PRESS_EXTENTS", "PRESS_HEIGHT", "PRESS_PRELOAD", "PRESS_STIFFNESS",
+           "PUSH_FORCE", "REST", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
+           "approach_scene", "grasp_path", "press_pose", "roll_pinch"]
 
 REST = 6
 """Frames at rest before each motion starts (and at least as many after it ends)."""
@@ -76,6 +81,19 @@ def _held(name: str, description: str, obj: RigidObject, pose: np.ndarray) -> Sc
 def _upright(centre: np.ndarray) -> np.ndarray:
     """Poses (T, 4, 4) of an object that keeps its rest orientation, its origin at ``centre`` (T, 3)."""
     return _poses(np.broadcast_to(np.eye(3), (len(centre), 3, 3)), centre)
+
+
+def _posture(hand, degrees: dict) -> tuple:
+    """(hand, q (D,) radians): the default right hand (built when ``hand`` is None) at its rest angles with the
+    joints named in ``degrees`` set."""
+    from ..hand import default_hand
+
+    hand = default_hand() if hand is None else hand
+    names = list(hand.joint_names)
+    q = hand.q_rest.detach().cpu().double().numpy().copy()
+    for name, deg in degrees.items():
+        q[names.index(name)] = math.radians(deg)
+    return hand, q
 
 
 def _box(mass: float, name: str = "box") -> tuple[RigidObject, float]:
@@ -203,13 +221,7 @@ def roll_pinch(hand=None) -> tuple[np.ndarray, np.ndarray]:
         (q (D,) radians, T_hand_object (4, 4)): the object frame has its origin at the cylinder's centre, z along
         its axis and x along u (from the thumb's contact toward the index's).
     """
-    from ..hand import default_hand
-
-    hand = default_hand() if hand is None else hand
-    names = list(hand.joint_names)
-    q = hand.q_rest.detach().cpu().double().numpy().copy()
-    for name, deg in _ROLL_POSTURE.items():
-        q[names.index(name)] = math.radians(deg)
+    hand, q = _posture(hand, _ROLL_POSTURE)
     T = hand.forward_kinematics(torch.as_tensor(q, dtype=hand.dtype)[None])[0].detach().cpu().double().numpy()
     a_loc, b_loc = hand.capsule_a.detach().cpu().double().numpy(), hand.capsule_b.detach().cpu().double().numpy()
     r = hand.capsule_radius.detach().cpu().double().numpy()
@@ -255,7 +267,76 @@ def liu_roll() -> Scene:
     return _scene("liu-roll", _ROLL, obj, pose, [("right", pose @ np.linalg.inv(T_hand_object))])
 
 
-LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll")
+# --- press: three fingertips press a sprung pad down and let it back up ----------------------------------------
+
+PRESS_EXTENTS = (0.10, 0.08, 0.02)
+"""Extents of the liu-press plate, metres."""
+PRESS_STIFFNESS = 1500.0
+"""Stiffness of the liu-press spring, newtons per metre."""
+PRESS_PRELOAD = 2.0
+"""Force the fingertips already press with at rest (the spring's force beyond the plate's weight), newtons."""
+PRESS_DEPTH = 0.02
+"""How far the liu-press plate is pressed down, metres."""
+PRESS_HEIGHT = 0.04
+"""Height of the liu-press plate's underside above the table at rest (the uncompressed foam under it), metres."""
+
+_PRESS_MASS = 0.1
+_PRESS_RAMP = 24            # frames of each ramp (down, up)
+_PRESS_HOLD = 6             # frames held fully pressed
+# The press posture of the default right hand (degrees): the thumb, index and middle fingertips on the plate's top
+# face around its centre (a least-squares fit of the fingertip capsules onto the face near chosen points, every joint
+# at least 3 degrees inside its limits, the other links at least 4 mm clear of the plate; scripts/make_liu_grasps.py,
+# ``make_press``), rounded to 0.1 degree; the ring and little fingers curled above the plate.
+_PRESS_POSTURE = {
+    "thumb_cmc_flex": 16.5, "thumb_cmc_abd": 25.3, "thumb_cmc_roll": -2.1, "thumb_mcp_flex": 50.5,
+    "thumb_mcp_abd": -4.7, "thumb_ip": 35.2,
+    "index_cmc_roll": -5.0, "index_mcp_abd": -0.5, "index_mcp_flex": 51.3, "index_pip": 37.8, "index_dip": 39.5,
+    "middle_cmc_roll": -5.0, "middle_mcp_abd": -1.3, "middle_mcp_flex": 34.6, "middle_pip": 60.5, "middle_dip": 33.6,
+    "ring_mcp_flex": 60.0, "ring_pip": 70.0, "ring_dip": 40.0,
+    "little_mcp_flex": 60.0, "little_pip": 70.0, "little_dip": 40.0,
+}
+_PRESS_WRIST = (-0.0886, -0.0041, 0.0908)   # the wrist in the plate frame (palm down, fingers along +x), metres
+
+
+def press_pose(hand=None) -> tuple[np.ndarray, np.ndarray]:
+    """The liu-press grasp before snapping: the default right hand's joint angles (``_PRESS_POSTURE``, the other
+    joints at rest) and ``T_object_hand`` (the palm facing down over the plate, fingers along +x, the wrist at
+    ``_PRESS_WRIST``). The three fingertips are within 3 mm of the top face (snapping closes the gaps), about
+    (-20, 8), (11, 16) and (20, -10) mm from its centre, so the plate's centre, where the spring pushes, lies inside their triangle."""
+    _, q = _posture(hand, _PRESS_POSTURE)
+    T_object_hand = np.eye(4)
+    T_object_hand[:3, 3] = _PRESS_WRIST
+    return q, T_object_hand
+
+
+_PRESS = ("Liu 2009 press: three fingertips (thumb, index, middle) press a 10 x 8 x 2 cm plate (0.1 kg) on a linear "
+          "spring (1500 N/m, the foam under it) 2 cm down in 0.8 s, hold it, and let it back up; the spring pushes "
+          "with 2 N beyond the plate's weight at rest and 32 N at the bottom.")
+
+
+@register_scene("liu-press", _PRESS)
+def liu_press() -> Scene:
+    """Liu's press flattens a deformable object modelled as a linear spring. torchhand's objects are rigid, so the
+    deformable object is a rigid plate (the object) on a spring to the table (the foam, not drawn): the plate moves
+    down by the desired compression d(t), and the spring's force ``m g + PRESS_PRELOAD + PRESS_STIFFNESS d(t)``, up,
+    at the plate's centre, is the scene's ``external_wrench``; the contact forces are those the compression needs,
+    as in the paper. Deviation: the paper flattens the object between the fingers of a three-finger pinch; here the
+    table holds the spring's other end, so the fingertips press from above."""
+    T = 2 * REST + 2 * _PRESS_RAMP + _PRESS_HOLD
+    ext = np.asarray(PRESS_EXTENTS)
+    obj = RigidObject.from_trimesh(trimesh.creation.box(extents=ext), mass=_PRESS_MASS, name="plate")
+    k0 = REST + _PRESS_RAMP + _PRESS_HOLD
+    d = PRESS_DEPTH * (_ramp(T, REST, REST + _PRESS_RAMP) - _ramp(T, k0, k0 + _PRESS_RAMP))
+    z0 = TABLE_HEIGHT + PRESS_HEIGHT + 0.5 * ext[2]
+    pose = _upright(np.stack([0 * d, 0 * d, z0 - d], axis=-1))
+    wrench = np.zeros((T, 6))
+    wrench[:, 2] = -_PRESS_MASS * DEFAULT_GRAVITY[2] + PRESS_PRELOAD + PRESS_STIFFNESS * d
+    _, T_object_hand = press_pose()
+    scene = _scene("liu-press", _PRESS, obj, pose, [("right", pose @ T_object_hand)])
+    return dataclasses.replace(scene, external_wrench=torch.tensor(wrench, dtype=torch.float64))
+
+
+LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press")
 """The Liu 2009 built-in scenes, each with a packaged grasp."""
 
 
