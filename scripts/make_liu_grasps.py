@@ -28,6 +28,7 @@ plate's top face (:func:`torchhand.scenes.liu.press_pose`), snapped with the def
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 import tempfile
@@ -37,10 +38,12 @@ import numpy as np
 
 from torchhand.cli import main as cli
 from torchhand.hand import default_hand
+from torchhand.hand.mount import track_hand
 from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
 from torchhand.scene_io import export_scene_dir
 from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import _GRASPS, LIU_SCENES, approach_scene, press_pose, roll_pinch
+from torchhand.scenes.liu import (_GRASPS, LIU_SCENES, SHADOW_HAND, approach_scene, press_pose, roll_pinch,
+                                   shadow_pose)
 
 SYNTH = ["--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000", "--solutions", "1",
          "--seed", "0", "--no-progress", "--threads", "1"]
@@ -122,7 +125,44 @@ def make_press(work: Path | None = None) -> Path:
     return save_grasp(snapped, _GRASPS / "liu-press.npz", overwrite=True)
 
 
+SHADOW_CONTACTS = {"rh_ffdistal", "rh_mfdistal", "rh_rfdistal", "rh_thdistal"}
+
+
+def make_shadow_lift(work: Path | None = None) -> Path:
+    """The liu-shadow-lift grasp (the Shadow hand of the shared reference data), deterministic and without search
+    (``work`` is not used):
+
+    1. the Shadow posture and the wrist on the box (``shadow_pose``: the first, middle and ring fingertips on the far
+       face pointing into it, the thumb tip on the near face, the little finger curled clear of the box);
+    2. ``snap_grasp`` with the default 5 mm tolerance (measured on the Shadow's own geoms' surface samples);
+    3. saved with ``hand`` = ``SHADOW_HAND``, the path relative to the shared data directory
+       (``torchhand.scenes.liu.load_packaged_grasp`` resolves it; the Shadow files are not shipped).
+
+    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a least-squares fit of
+    the wrist and every finger joint, starting from the palm 3 cm over the top face, each of the four fingertip
+    capsules tangent to its face near a chosen point, the first, middle and ring distal axes within about 20 degrees
+    of the face normal (the fingertip ends touch: there the fitted capsules lie within 0.6 mm of the Shadow's
+    meshes, on the pads about 2 mm, more than the checker's contact tolerance), every other link at least 4 mm from
+    the box and 3 mm above the table, every joint at least 3 degrees inside its limits.
+    """
+    scene = builtin_scene("liu-shadow-lift")            # its hand track is the Shadow hand's file
+    hand = track_hand(scene.hands[0])
+    q, T_object_hand = shadow_pose(hand)
+    grasp = Grasp(hand=scene.hands[0].model, side="right", joint_names=tuple(hand.joint_names), q=q,
+                  wrist_in_object=T_object_hand, frame=0, length=0.19)
+    snapped, report = snap_grasp(grasp, hand, scene.object.mesh)
+    for line in report.lines():
+        print(f"liu-shadow-lift snap: {line}")
+    if not SHADOW_CONTACTS <= set(snapped.contact_links):
+        raise SystemExit(f"liu-shadow-lift: expected {', '.join(sorted(SHADOW_CONTACTS))} among the contacts, got "
+                         f"{', '.join(snapped.contact_links)}")
+    _GRASPS.mkdir(exist_ok=True)
+    return save_grasp(dataclasses.replace(snapped, hand=SHADOW_HAND), _GRASPS / "liu-shadow-lift.npz", overwrite=True)
+
+
 def make(name: str, work: Path) -> Path:
+    if name == "liu-shadow-lift":
+        return make_shadow_lift(work)
     if name == "liu-roll":
         return make_roll(work)
     if name == "liu-press":

@@ -415,3 +415,30 @@ def test_checker_does_not_import_the_synthesis(clean_dir, tmp_path):
             "assert not bad, bad; print('ok')")
     run = subprocess.run([sys.executable, "-c", code, str(root)], capture_output=True, text=True, cwd=REPO)
     assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
+
+
+def test_mjcf_depth_asks_trimesh_only_inside_the_bounding_box():
+    """The depth of surface points into a geom or object mesh (``mjcf_geometry._depth_into``) against trimesh's
+    signed distance of all the points: equal whenever a point is inside (the depth is exact); otherwise at least the
+    true value and at most 0 (a lower bound of the clearance). Point clouds around a rotated box and a sphere, some
+    reaching inside, some not."""
+    from torchhand.check.mjcf_geometry import _depth_into
+
+    rng = np.random.default_rng(5)
+    box = trimesh.creation.box(extents=(0.03, 0.02, 0.01))
+    box.apply_transform(trimesh.transformations.rotation_matrix(0.7, (1.0, 2.0, 0.5)))
+    meshes = [box, trimesh.creation.icosphere(subdivisions=3, radius=0.012)]
+    inside = outside = 0
+    for mesh in meshes:
+        for k in range(40):
+            centre = rng.normal(scale=0.02, size=3)
+            pts = centre + rng.normal(scale=0.004, size=(50, 3))
+            ours = _depth_into(mesh, pts)
+            truth = float(trimesh.proximity.signed_distance(mesh, pts).max())
+            if truth > 0:
+                inside += 1
+                assert ours == pytest.approx(truth, abs=1e-12)
+            else:
+                outside += 1
+                assert truth - 1e-12 <= ours <= 0.0
+    assert inside >= 10 and outside >= 10

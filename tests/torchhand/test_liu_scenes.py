@@ -13,17 +13,28 @@ import torch
 import trimesh
 
 from torchhand.cli import main as cli
+from torchhand.errors import MissingFileError
 from torchhand.hand.mount import track_hand
 from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
 from torchhand.scenes import builtin_scene, list_builtin_scenes
 from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
 from torchhand.scenes.liu import (LIU_SCENES, PRESS_DEPTH, PRESS_HEIGHT, PRESS_PRELOAD, PRESS_STIFFNESS,
-                                   grasp_path)
+                                   SHADOW_HAND, grasp_path, load_packaged_grasp)
+
+from ..conftest import shared_path
+from .test_manipulate import mujoco_torque_error
+
+
+def _needs_shadow(name: str) -> None:
+    """Skip (with the reason) a scene whose hand is not in this checkout's shared reference data."""
+    if name == "liu-shadow-lift":
+        shared_path(*SHADOW_HAND.split("/"))
 
 
 @pytest.mark.parametrize("name", LIU_SCENES)
 def test_scene_builds_deterministically(name):
     assert name in list_builtin_scenes()
+    _needs_shadow(name)
     a, b = builtin_scene(name), builtin_scene(name)
     a.validate()
     assert 30 <= a.T <= 66 and a.fps == FPS and a.hands[0].side == "right"
@@ -83,13 +94,17 @@ def test_packaged_grasp_touches_the_object(name):
     """The packaged grasp loads against the scene's hand (joint names, limits), and re-snapping it onto the scene's
     object finds contacts within the 5 mm tolerance; the contact links' hand points lie within 5 mm of the mesh and
     the object points on it, both measured with trimesh's closest-point query."""
+    _needs_shadow(name)
     scene = builtin_scene(name)
     path = grasp_path(name)
     assert path is not None and path.is_file() and path.name == f"{name}.npz"
     hand = track_hand(scene.hands[0])
-    g = load_grasp(path, hand)
-    assert g.side == "right" and g.hand == "default" and len(g.contact_links) >= 2
-    if name == "liu-roll":
+    g = load_packaged_grasp(name, hand)
+    assert g.side == "right" and g.hand == scene.hands[0].model and len(g.contact_links) >= 2
+    if name == "liu-shadow-lift":
+        assert load_grasp(path).hand == SHADOW_HAND              # stored relative to the shared data
+        assert {"rh_ffdistal", "rh_mfdistal", "rh_rfdistal", "rh_thdistal"} <= set(g.contact_links)
+    elif name == "liu-roll":
         assert set(g.contact_links) == {"thumb_distal", "index_distal"}
     elif name == "liu-press":
         assert set(g.contact_links) == {"thumb_distal", "index_distal", "middle_distal"}
@@ -217,6 +232,41 @@ def test_press_end_to_end(tmp_path):
     pairs, slip = _static_slip(z, grasp_hand(load_grasp(grasp_path("liu-press"))))
     print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
     assert pairs >= 3 * (pose.shape[0] - 1) - 3 and slip <= 1e-3
+
+
+def test_shadow_lift_end_to_end(tmp_path, capsys):
+    """``torchhand manipulate liu-shadow-lift`` (the Shadow hand of the shared data, its packaged grasp) then
+    ``torchhand check`` (on the Shadow's own MJCF geoms): it completes and passes; the box is the 2.0 kg box of
+    liu-lift; the stored torques equal MuJoCo's on the written hand.xml (the Shadow's own inertials) within 1 % of the
+    largest; the static contacts slip at most 1 mm/s (many contact-frames are planned on the cone's edge, as
+    sliding rays, and are not counted)."""
+    _needs_shadow("liu-shadow-lift")
+    out = tmp_path / "shadow"
+    assert cli(["manipulate", "liu-shadow-lift", "--out", str(out), "--threads", "1", "--no-progress"]) == 0
+    assert cli(["check", str(out)]) == 0
+    stats = json.loads((out / "stats.json").read_text())
+    z = np.load(out / "solutions" / "sol_000.npz")
+    assert stats["complete"] and stats["mass"] == 2.0 and z["q"].shape == (48, 24)
+    worst, scale = mujoco_torque_error(out)
+    assert worst <= 0.01 * scale
+    pairs, slip = _static_slip(z, track_hand(builtin_scene("liu-shadow-lift").hands[0]))
+    print(f"liu-shadow-lift: {stats['added_contacts']} added; static hand contacts: {pairs} contact-frames, largest "
+          f"tangential speed {1e3 * slip:.3f} mm/s")
+    assert pairs >= z["q"].shape[0] and slip <= 1e-3
+
+
+def test_shadow_lift_without_the_shared_data(tmp_path, monkeypatch, capsys):
+    """A checkout without the Shadow hand: the scene and its packaged grasp name the missing file in one line, and
+    the command exits 2 without writing anything."""
+    monkeypatch.setenv("TORCHHAND_SHARED_DATA", str(tmp_path / "nowhere"))
+    with pytest.raises(MissingFileError, match="TORCHHAND_SHARED_DATA"):
+        builtin_scene("liu-shadow-lift")
+    with pytest.raises(MissingFileError, match="right_hand.xml"):
+        load_packaged_grasp("liu-shadow-lift")
+    out = tmp_path / "out"
+    assert cli(["manipulate", "liu-shadow-lift", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Shadow hand" in err[0] and not out.exists()
 
 
 def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):

@@ -8,7 +8,8 @@ triangle mesh in its own frame (MuJoCo's sizes; mesh geoms from MuJoCo's compile
 
 Depth of a link in the object (metres, the largest over the link's geoms and the frame):
     * points on each geom's surface (its vertices and an even sample ``spacing`` apart), their signed distance
-      into the object mesh (trimesh, positive inside), and
+      into the object mesh (trimesh, positive inside; only the points inside the mesh's bounding box are asked),
+      and
     * the object's vertices inside each geom, their distance to the geom's surface,
 whichever is larger; 0 when nothing is inside. Exact where the deepest point is a geom or object vertex or a
 sample; an edge of one crossing a face of the other between samples is under-measured by at most about
@@ -64,7 +65,7 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
             R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
             world = pts @ R.T + p
             local = world @ inv[:3, :3].T + inv[:3, 3]
-            depth = max(float(trimesh.proximity.signed_distance(obj_mesh, local).max()), 0.0)
+            depth = max(_depth_into(obj_mesh, local), 0.0)
             # object vertices inside the geom (a box corner pressing into a palm plate)
             in_geom = (world_verts - p) @ R
             near = np.linalg.norm(in_geom, axis=1) <= np.linalg.norm(tm.vertices, axis=1).max()
@@ -140,8 +141,9 @@ def geom_finger_depths(xml_path, model, q: np.ndarray, root: np.ndarray, pairs: 
     """Overlap of link pairs of different fingers on their MJCF geoms posed by MuJoCo.
 
     For two geoms whose bounding spheres overlap: the largest signed distance (trimesh, positive inside) of either
-    geom's surface points (vertices and an even ``spacing`` sample) into the other geom; otherwise minus the gap
-    between the bounding spheres (a lower bound of the clearance). MuJoCo's own ``mj_geomDistance`` is not used for
+    geom's surface points (vertices and an even ``spacing`` sample) into the other geom, measured by trimesh for the
+    points inside the other geom's bounding box (a lower bound of the clearance when none is inside); otherwise
+    minus the gap between the bounding spheres (a lower bound of the clearance). MuJoCo's own ``mj_geomDistance`` is not used for
     the depth: on two boxes it reports half the overlap (MuJoCo 3.2.7).
 
     Args:
@@ -174,9 +176,23 @@ def geom_finger_depths(xml_path, model, q: np.ndarray, root: np.ndarray, pairs: 
                         continue
                     for u, v in ((x, y), (y, x)):       # u's surface points in v's frame, against v's mesh
                         local = ((u[2] @ R[u[0]].T + p[u[0]]) - p[v[0]]) @ R[v[0]]
-                        worst = max(worst, float(trimesh.proximity.signed_distance(v[3], local).max()))
+                        worst = max(worst, _depth_into(v[3], local))
             out[t, k] = worst
     return out
+
+
+def _depth_into(mesh: trimesh.Trimesh, points: np.ndarray) -> float:
+    """The largest signed distance (positive inside) of ``points`` (P, 3) into ``mesh``: exact when positive; when
+    negative, a lower bound of the clearance. Only the points inside the mesh's bounding box go to trimesh (a point
+    inside the mesh is inside its box); the others count with minus their distance to the box, which is at most
+    their distance to the mesh."""
+    lo, hi = mesh.bounds
+    outside = np.linalg.norm(np.maximum(lo - points, 0.0) + np.maximum(points - hi, 0.0), axis=1)
+    inbox = outside == 0.0
+    worst = -float(outside[~inbox].min()) if (~inbox).any() else -np.inf
+    if inbox.any():
+        worst = max(worst, float(trimesh.proximity.signed_distance(mesh, points[inbox]).max()))
+    return worst
 
 
 def geom_contact_gaps(xml_path, model, q: np.ndarray, root: np.ndarray, frame: np.ndarray, link: np.ndarray,

@@ -57,6 +57,13 @@ def _builtin_grasp(name: str) -> Path | None:
     return None if path is None else Path(path)
 
 
+def _packaged_grasp(name: str):
+    """The grasp shipped with the built-in scene ``name``, its hand resolved (``torchhand.scenes.liu``)."""
+    from ..scenes.liu import load_packaged_grasp
+
+    return load_packaged_grasp(name)
+
+
 def _grasp_path(scene_arg: str, grasp: str | None) -> Path:
     if grasp is not None:
         return Path(grasp)
@@ -92,7 +99,8 @@ def run(args) -> int:
             scene = scene.with_frames(*_frames(args.frames, scene.T))
         if args.window > scene.T:
             raise InputValueError(f"--window: expected at most the {scene.T} frames of the motion, got {args.window}")
-        grasp = load_grasp(grasp_file)
+        packaged = args.grasp is None and grasp_file == _builtin_grasp(args.scene)
+        grasp = _packaged_grasp(args.scene) if packaged else load_grasp(grasp_file)
         settings = ManipulationSettings(
             plan=PlanSettings(window=args.window, max_contact_force=args.max_force),
             synth=SynthSettings(objective="pose" if args.no_objective else "torque"))

@@ -31,21 +31,27 @@ pinch hold the cylinder (docs/manipulation.md, "Built-in examples").
 ``liu-press`` differs too: the paper's deformable object is a rigid plate on a linear spring to the table (the
 spring's force is the scene's ``external_wrench``), pressed from above by the thumb, index and middle fingertips of
 a fitted posture (:func:`press_pose`, ``make_press`` in the script).
+
+``liu-shadow-lift`` is liu-lift with the Shadow hand of the shared reference data (:func:`shadow_hand_path`; not
+shipped): a fitted posture (:func:`shadow_pose`) with three fingertips on the far face and the thumb on the near
+one. Its packaged grasp names the hand relative to the shared data directory (:data:`SHADOW_HAND`);
+:func:`load_packaged_grasp` resolves it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
-from ..errors import InputValueError
+from ..errors import InputValueError, MissingFileError, UnknownNameError
 from ..objects import RigidObject
-from ..scene import DEFAULT_GRAVITY, Scene
+from ..scene import DEFAULT_GRAVITY, HandTrack, Scene
 from . import register_scene
 from .builtin import (
     _APPROACH,
@@ -61,8 +67,9 @@ from .builtin import (
 )
 
 __all__ = ["LIU_SCENES", "PRESS_DEPTH", "PRESS_EXTENTS", "PRESS_HEIGHT", "PRESS_PRELOAD", "PRESS_STIFFNESS",
-           "PUSH_FORCE", "REST", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
-           "approach_scene", "grasp_path", "press_pose", "roll_pinch"]
+           "PUSH_FORCE", "REST", "SHADOW_HAND", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
+           "approach_scene", "grasp_path", "load_packaged_grasp", "press_pose", "roll_pinch",
+           "shadow_hand_path", "shadow_pose", "shared_data_dir"]
 
 REST = 6
 """Frames at rest before each motion starts (and at least as many after it ends)."""
@@ -336,7 +343,89 @@ def liu_press() -> Scene:
     return dataclasses.replace(scene, external_wrench=torch.tensor(wrench, dtype=torch.float64))
 
 
-LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press")
+# --- shadow-lift: the heavy lift with the Shadow hand ------------------------------------------------------------
+
+SHADOW_HAND = "hands/shadow_hand/right_hand.xml"
+"""The hand of liu-shadow-lift, relative to the shared reference data directory (:func:`shared_data_dir`): MuJoCo
+Menagerie's Shadow right hand. It is not shipped with torchhand; the packaged grasp names it by this relative path."""
+
+# The Shadow grasp (degrees; the other joints at 0, the file's rest): the first, middle and ring fingertips on the
+# box's far (+x) face pointing into it, the thumb tip on the near (-x) face, the little finger curled clear. A
+# least-squares fit of the wrist and the finger joints (scripts/make_liu_grasps.py, ``make_shadow_lift``), rounded
+# to 0.1 degree. The fingertips press with the ends of their distal links: there the fitted capsules lie within
+# 0.6 mm of the Shadow's fingertip meshes, against about 2 mm on the pads, and the checker measures the meshes.
+_SHADOW_POSTURE = {
+    "rh_FFJ4": 10.9, "rh_FFJ3": 22.9, "rh_FFJ2": 53.8, "rh_FFJ1": 69.8,
+    "rh_MFJ4": 9.2, "rh_MFJ3": 32.2, "rh_MFJ2": 57.0, "rh_MFJ1": 57.7,
+    "rh_RFJ4": -0.5, "rh_RFJ3": 34.3, "rh_RFJ2": 56.3, "rh_RFJ1": 60.2,
+    "rh_LFJ5": 3.0, "rh_LFJ3": 60.0, "rh_LFJ2": 60.0, "rh_LFJ1": 40.0,
+    "rh_THJ5": -38.5, "rh_THJ4": 67.0, "rh_THJ3": 9.0, "rh_THJ2": 16.5, "rh_THJ1": 36.4,
+}
+_SHADOW_WRIST = ((0.0589, 0.2355, 0.3101), (-0.0497, -0.0566, 0.0914))   # rotation vector, position (m), box frame
+
+
+def shared_data_dir() -> Path:
+    """The shared reference data directory: ``$TORCHHAND_SHARED_DATA``, or ``shared/data`` beside the source tree
+    (``../shared/data`` from a checkout)."""
+    env = os.environ.get("TORCHHAND_SHARED_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+def shadow_hand_path() -> Path:
+    """The Shadow hand's MJCF file in the shared reference data.
+
+    Raises:
+        MissingFileError: it is not there (names the path and ``TORCHHAND_SHARED_DATA``).
+    """
+    path = shared_data_dir() / SHADOW_HAND
+    if not path.is_file():
+        raise MissingFileError(f"liu-shadow-lift: the Shadow hand ({SHADOW_HAND} of the shared reference data) is not "
+                               f"at {path}; set TORCHHAND_SHARED_DATA to the data directory")
+    return path
+
+
+def shadow_pose(hand) -> tuple[np.ndarray, np.ndarray]:
+    """The liu-shadow-lift grasp before snapping: the Shadow hand's joint angles (``_SHADOW_POSTURE``) and
+    ``T_object_hand`` (the box frame of the lift at frame 0)."""
+    names = list(hand.joint_names)
+    q = np.zeros(len(names))
+    for name, deg in _SHADOW_POSTURE.items():
+        q[names.index(name)] = math.radians(deg)
+    rotvec, pos = (np.asarray(v, dtype=np.float64) for v in _SHADOW_WRIST)
+    angle = float(np.linalg.norm(rotvec))
+    k = rotvec / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    T_object_hand = np.eye(4)
+    T_object_hand[:3, :3] = np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+    T_object_hand[:3, 3] = pos
+    return q, T_object_hand
+
+
+_SHADOW_LIFT = ("Liu 2009 heavy lift with the Shadow hand: the 9 x 7 x 6 cm box (2.0 kg) of liu-lift, lifted 10 cm "
+                "off the table in 1 s and held, by the Shadow right hand of the shared reference data (three "
+                "fingertips on the far face, the thumb on the near face).")
+
+
+@register_scene("liu-shadow-lift", _SHADOW_LIFT)
+def liu_shadow_lift() -> Scene:
+    """liu-lift's box and motion; the hand track is the Shadow hand (:func:`shadow_hand_path`) holding the box
+    rigidly with the grasp of :func:`shadow_pose`.
+
+    Raises:
+        MissingFileError: the shared reference data has no Shadow hand.
+    """
+    from ..hand.mount import track_hand
+
+    lift = liu_lift()
+    model = str(shadow_hand_path())
+    hand = track_hand(HandTrack(side="right", wrist_pose=lift.hands[0].wrist_pose, model=model))
+    _, T_object_hand = shadow_pose(hand)
+    wrist = torch.as_tensor(lift.object_pose.numpy() @ T_object_hand)
+    return dataclasses.replace(lift, name="liu-shadow-lift", description=_SHADOW_LIFT,
+                               hands=(HandTrack(side="right", wrist_pose=wrist, model=model),))
+
+
+LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift")
 """The Liu 2009 built-in scenes, each with a packaged grasp."""
 
 
@@ -351,6 +440,28 @@ def grasp_path(scene_name: str) -> Path | None:
         return None
     path = _GRASPS / f"{scene_name}.npz"
     return path if scene_name in LIU_SCENES and path.is_file() else None
+
+
+def load_packaged_grasp(scene_name: str, hand=None):
+    """The packaged grasp of a built-in scene, ready to use: :func:`~torchhand.manipulation.load_grasp` of
+    :func:`grasp_path`, with a hand named relative to the shared reference data (``liu-shadow-lift``'s
+    :data:`SHADOW_HAND`) resolved to its file. With ``hand``, also checked against it.
+
+    Raises:
+        UnknownNameError: the scene has no packaged grasp; MissingFileError: its hand is not in the shared data;
+        the errors of ``load_grasp``.
+    """
+    from ..manipulation.grasp import check_grasp_hand, load_grasp
+
+    path = grasp_path(scene_name)
+    if path is None:
+        raise UnknownNameError(f"scene: no packaged grasp for {scene_name!r}; packaged: {', '.join(LIU_SCENES)}")
+    grasp = load_grasp(path)
+    if grasp.hand == SHADOW_HAND:
+        grasp = dataclasses.replace(grasp, hand=str(shadow_hand_path()))
+    if hand is not None:
+        check_grasp_hand(grasp, hand, where=str(path))
+    return grasp
 
 
 def approach_scene(scene: Scene, frames: int = _APPROACH + 4) -> Scene:
