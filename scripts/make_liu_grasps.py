@@ -42,8 +42,15 @@ from torchhand.hand.mount import track_hand
 from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
 from torchhand.scene_io import export_scene_dir
 from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import (_GRASPS, LIU_SCENES, SHADOW_HAND, approach_scene, press_pose, roll_pinch,
-                                   shadow_pose)
+from torchhand.scenes.liu import (
+    _GRASPS,
+    LIU_SCENES,
+    SHADOW_HAND,
+    approach_scene,
+    press_pose,
+    roll_pinch,
+    shadow_pose,
+)
 
 SYNTH = ["--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000", "--solutions", "1",
          "--seed", "0", "--no-progress", "--threads", "1"]

@@ -6,6 +6,7 @@ checked against the box's own motion and its static hand contacts checked for sl
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -16,13 +17,21 @@ from torchhand.cli import main as cli
 from torchhand.errors import MissingFileError
 from torchhand.hand.mount import track_hand
 from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
+from torchhand.manipulation.audit import contact_motion, mujoco_torque_error
 from torchhand.scenes import builtin_scene, list_builtin_scenes
 from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
-from torchhand.scenes.liu import (LIU_SCENES, PRESS_DEPTH, PRESS_HEIGHT, PRESS_PRELOAD, PRESS_STIFFNESS,
-                                   SHADOW_HAND, grasp_path, load_packaged_grasp)
+from torchhand.scenes.liu import (
+    LIU_SCENES,
+    PRESS_DEPTH,
+    PRESS_HEIGHT,
+    PRESS_PRELOAD,
+    PRESS_STIFFNESS,
+    SHADOW_HAND,
+    grasp_path,
+    load_packaged_grasp,
+)
 
 from ..conftest import shared_path
-from .test_manipulate import mujoco_torque_error
 
 
 def _needs_shadow(name: str) -> None:
@@ -127,12 +136,6 @@ def test_grasp_path_is_none_for_other_names():
     assert grasp_path("box-turn") is None and grasp_path("no-such-scene") is None and grasp_path(3) is None
 
 
-def _fk_world(hand, q, root, links, local):
-    T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
-    Tl = T[links]
-    return np.einsum("kij,kj->ki", Tl[:, :3, :3], local) + Tl[:, :3, 3]
-
-
 def test_drag_end_to_end(tmp_path):
     """``torchhand manipulate liu-drag`` with its packaged grasp, then ``torchhand check``: every figure passes.
     The table contacts slide: their friction force opposes the box's velocity (from its poses, cos <= -0.95 where
@@ -163,35 +166,10 @@ def test_drag_end_to_end(tmp_path):
     print(f"sliding table contacts: {n}, smallest cos(friction, -velocity) {worst:.4f}")
     assert n > 0 and worst >= 0.95
     # static hand contacts: tangential speed of the material points
-    pairs, slip = _static_slip(z, grasp_hand(load_grasp(grasp_path("liu-drag"))))
+    motion = contact_motion(out)
+    pairs, slip = motion.static_pairs, motion.static_speed
     print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
     assert pairs >= pose.shape[0] and slip <= 1e-3
-
-
-def _static_slip(z, hand) -> tuple[int, float]:
-    """(number of static contact-frames, their largest tangential speed in m/s): the material points of each hand
-    contact that is static at frame t and was in contact at t-1, placed by FK of the stored motion (the hand point)
-    and by the stored object pose (the object point), differenced over the frame."""
-    pose = z["object_pose"]
-    names = [str(s) for s in z["contact_link_name"]]
-    link_ids = np.array([list(hand.link_names).index(s) for s in names])
-    slip, pairs = 0.0, 0
-    for t in range(1, pose.shape[0]):
-        static = (z["contact_mask"][t] & z["contact_mask"][t - 1] & ~z["contact_sliding"][t]
-                  & ~z["contact_added"][t])
-        if not static.any():
-            continue
-        ks = np.flatnonzero(static)
-        pairs += len(ks)
-        links = link_ids[z["contact_link"][t - 1, ks]]
-        h, p = z["contact_hand_local"][t - 1, ks], z["contact_object_local"][t - 1, ks]
-        rel = [_fk_world(hand, z["q"][s], z["root_pose"][s], links, h) - (p @ pose[s][:3, :3].T + pose[s][:3, 3])
-               for s in (t - 1, t)]
-        vel = (rel[1] - rel[0]) * FPS
-        nrm = z["contact_normal"][t, ks]
-        vt = vel - (vel * nrm).sum(-1, keepdims=True) * nrm
-        slip = max(slip, float(np.linalg.norm(vt, axis=-1).max()))
-    return pairs, slip
 
 
 def test_press_motion_and_spring():
@@ -229,9 +207,19 @@ def test_press_end_to_end(tmp_path):
     print(f"liu-press: hand force {got.min():.2f} N at the bottom (needs {need.min():.2f} N), largest difference "
           f"{err:.3f} N; {stats['frames_per_second']:.1f} frames/s")
     assert err < 0.05 * np.abs(need).max() and got.min() < -PRESS_STIFFNESS * PRESS_DEPTH
-    pairs, slip = _static_slip(z, grasp_hand(load_grasp(grasp_path("liu-press"))))
+    motion = contact_motion(out)
+    pairs, slip = motion.static_pairs, motion.static_speed
     print(f"static hand contacts: {pairs} contact-frames, largest tangential speed {1e3 * slip:.3f} mm/s")
     assert pairs >= 3 * (pose.shape[0] - 1) - 3 and slip <= 1e-3
+    # the measurement sees slip: the hand moved 1 mm along the plate (x, tangential) at one frame slides every
+    # contact 1 mm in 1/30 s there and back
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    data = dict(z)
+    data["root_pose"] = z["root_pose"].copy()
+    data["root_pose"][30, 0, 3] += 1e-3
+    np.savez(moved / "solutions" / "sol_000.npz", **data)
+    assert contact_motion(moved).static_speed == pytest.approx(1e-3 * FPS, rel=1e-6)
 
 
 def test_shadow_lift_end_to_end(tmp_path, capsys):
@@ -247,9 +235,11 @@ def test_shadow_lift_end_to_end(tmp_path, capsys):
     stats = json.loads((out / "stats.json").read_text())
     z = np.load(out / "solutions" / "sol_000.npz")
     assert stats["complete"] and stats["mass"] == 2.0 and z["q"].shape == (48, 24)
+    pytest.importorskip("mujoco")
     worst, scale = mujoco_torque_error(out)
     assert worst <= 0.01 * scale
-    pairs, slip = _static_slip(z, track_hand(builtin_scene("liu-shadow-lift").hands[0]))
+    motion = contact_motion(out)
+    pairs, slip = motion.static_pairs, motion.static_speed
     print(f"liu-shadow-lift: {stats['added_contacts']} added; static hand contacts: {pairs} contact-frames, largest "
           f"tangential speed {1e3 * slip:.3f} mm/s")
     assert pairs >= z["q"].shape[0] and slip <= 1e-3
@@ -275,7 +265,11 @@ def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):
     checker's 2 mm contact-hand bound covers an added contact whenever it carries force). The same lift of a 1.5 kg box (a mass
     override, recorded as ``variant_mass`` so the checker balances it with its own weight) needs no contact."""
     from torchhand.check import check_result
-    from torchhand.manipulation import ManipulationSettings, manipulate, write_manipulation
+    from torchhand.manipulation import (
+        ManipulationSettings,
+        manipulate,
+        write_manipulation,
+    )
     from torchhand.manipulation.plan import PlanSettings
 
     out = tmp_path / "lift"

@@ -1,0 +1,138 @@
+"""Measurements of a written manipulation result that the checker does not make (Liu 2009's acceptance figures),
+read from the result directory only: the stored torques against MuJoCo's, the slip of static contacts and the
+direction of sliding ones (Eq. 7).
+
+* :func:`mujoco_torque_error`: the result's ``hand.xml`` in MuJoCo at every frame's root pose and joint angles, at
+  rest: the generalised forces that hold the hand still against gravity and the object's reaction are
+  ``qfrc_bias + J^T f`` (``mj_applyFT`` of the force f each contact applies to the object, at its hand point);
+  mapped to torchhand's order (torque about the root origin, force, joint torques) and compared with ``torque``.
+* :func:`contact_motion`: the material points of every hand contact, placed by forward kinematics of the stored
+  motion (the hand point, ``contact_hand_local``) and by the stored object pose (the object point,
+  ``contact_object_local``), differenced over each frame: their tangential relative velocity. Static contacts
+  should not move (at most 1 mm/s); a sliding one's friction force on the object should point along the hand
+  point's velocity relative to the object (Eq. 7: the hand drags the object's surface with it).
+
+Needs ``mujoco`` for the torques (a test extra).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["ContactMotion", "contact_motion", "mujoco_torque_error"]
+
+SLIDE_SPEED = 1e-3
+"""Tangential speed above which a contact counts as moving (m/s): the static-slip bound."""
+
+
+def _quat_wxyz(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
+
+
+def mujoco_torque_error(result_dir) -> tuple[float, float]:
+    """(largest |stored torque - MuJoCo's| over the frames and generalised forces, largest |stored torque|) of a
+    one-hand manipulation result directory (module docstring). Raises ImportError without ``mujoco``."""
+    import mujoco
+
+    d = Path(result_dir)
+    m = mujoco.MjModel.from_xml_path(str(d / "hand.xml"))
+    m.dof_armature[:] = 0
+    with np.load(d / "solutions" / "sol_000.npz") as f:
+        z = {k: f[k] for k in f.files}
+    names = [str(n) for n in z["joint_names"]]
+    jid = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
+    if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or min(jid) <= 0:
+        raise ValueError(f"{d / 'hand.xml'}: expected a free root joint and the result's joints")
+    qadr, dadr = m.jnt_qposadr[jid], m.jnt_dofadr[jid]
+    data = mujoco.MjData(m)
+    link_names = [str(n) for n in z["contact_link_name"]]
+    worst, scale = 0.0, float(np.abs(z["torque"]).max())
+    D = len(names)
+    for t in range(z["q"].shape[0]):
+        root = z["root_pose"][t]
+        data.qpos[:] = m.qpos0
+        data.qpos[:3], data.qpos[3:7], data.qpos[qadr] = root[:3, 3], _quat_wxyz(root[:3, :3]), z["q"][t]
+        data.qvel[:] = 0
+        mujoco.mj_forward(m, data)
+        qfrc = data.qfrc_bias.copy()
+        for k in np.flatnonzero(z["contact_mask"][t]):
+            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, link_names[z["contact_link"][t, k]])
+            point = data.xmat[body].reshape(3, 3) @ z["contact_hand_local"][t, k] + data.xpos[body]
+            mujoco.mj_applyFT(m, data, z["contact_force"][t, k], np.zeros(3), point, body, qfrc)
+        S = np.zeros((m.nv, 6 + D))
+        S[0:3, 3:6] = np.eye(3)
+        S[3:6, 0:3] = root[:3, :3].T
+        S[dadr, 6 + np.arange(D)] = 1
+        worst = max(worst, float(np.abs(S.T @ qfrc - z["torque"][t]).max()))
+    return worst, scale
+
+
+@dataclass(frozen=True)
+class ContactMotion:
+    """Relative motion of the hand contacts of a result, frame t-1 -> t, for every contact active at both frames.
+
+    static_pairs: contact-frames that are static at t (not sliding, not added); static_speed: their largest
+        tangential speed, m/s (0 when there are none)
+    sliding_pairs: contact-frames marked sliding at t whose material points move faster than ``SLIDE_SPEED`` and
+        whose friction force is not zero; cos: for those, cos(friction force on the object, hand point velocity
+        relative to the object point), (N,)
+    """
+
+    static_pairs: int
+    static_speed: float
+    sliding_pairs: int
+    cos: np.ndarray
+
+    def share_along(self, bound: float = 0.95) -> float:
+        """Share of the moving sliding contact-frames whose friction lies within acos(bound) of the velocity
+        (NaN when there are none)."""
+        return float(np.mean(self.cos >= bound)) if len(self.cos) else float("nan")
+
+
+def contact_motion(result_dir) -> ContactMotion:
+    """:class:`ContactMotion` of a one-hand manipulation result directory (module docstring): the hand is the
+    result's own (``load_result``), the points its stored link-frame and object-frame contact points."""
+    from ..result import load_result
+
+    res = load_result(result_dir)
+    hand = next(iter(res.hand_models.values()))
+    with np.load(Path(result_dir) / "solutions" / "sol_000.npz") as f:
+        z = {k: f[k] for k in f.files}
+    pose, fps = z["object_pose"], float(z["fps"])
+    names = [str(s) for s in z["contact_link_name"]]
+    link_ids = np.array([list(hand.link_names).index(s) for s in names])
+    slot = z["contact_slot"]
+    static_speed, static_pairs, cos = 0.0, 0, []
+    for t in range(1, pose.shape[0]):
+        prev_col = {int(s): j for j, s in enumerate(slot[t - 1]) if s >= 0}
+        for j in np.flatnonzero(z["contact_mask"][t]):
+            i = prev_col.get(int(slot[t, j]))
+            if i is None:
+                continue
+            link = link_ids[z["contact_link"][t - 1, i]]
+            h, p = z["contact_hand_local"][t - 1, i], z["contact_object_local"][t - 1, i]
+            rel = []
+            for s in (t - 1, t):
+                T = hand.forward_kinematics(torch.as_tensor(z["q"][s])[None],
+                                            torch.as_tensor(z["root_pose"][s])[None])[0, link].numpy()
+                rel.append(T[:3, :3] @ h + T[:3, 3] - (pose[s][:3, :3] @ p + pose[s][:3, 3]))
+            v = (rel[1] - rel[0]) * fps
+            n = z["contact_normal"][t, j]
+            vt = v - (v @ n) * n
+            speed = float(np.linalg.norm(vt))
+            if not z["contact_sliding"][t, j] and not z["contact_added"][t, j]:
+                static_pairs += 1
+                static_speed = max(static_speed, speed)
+            elif z["contact_sliding"][t, j] and speed > SLIDE_SPEED:
+                f = z["contact_force"][t, j]
+                ft = f - (f @ n) * n
+                if np.linalg.norm(ft) > 1e-9:
+                    cos.append(float(ft @ vt) / (np.linalg.norm(ft) * speed))
+    return ContactMotion(static_pairs, static_speed, len(cos), np.array(cos))
