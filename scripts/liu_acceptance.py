@@ -25,18 +25,17 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from torchhand.check import check_result
 from torchhand.cli import main as cli
 from torchhand.manipulation.audit import contact_motion, mujoco_torque_error
+from torchhand.manipulation.plots import load_trace, torque_deviation
 from torchhand.scenes.liu import LIU_SCENES, SHADOW_HAND, shared_data_dir
 
 
 def finger_deviation(result_dir: Path) -> float:
-    """sum over frames of |u - u_bar|^2 over the finger joints (the generalised forces after the root's six)."""
-    with np.load(result_dir / "solutions" / "sol_000.npz") as z:
-        return float(((z["torque"][:, 6:] - z["torque_rest"][None, 6:]) ** 2).sum())
+    """sum over frames of |u - u_bar|^2 over the finger joints (the generalised forces after the root's six; two
+    hands: both), as the torque-deviation plot adds them."""
+    return float(torque_deviation(load_trace(result_dir))["joints"].sum())
 
 
 def run(name: str, work: Path, render: bool) -> dict:

@@ -40,16 +40,19 @@ from torchhand.cli import main as cli
 from torchhand.hand import default_hand
 from torchhand.hand.mount import track_hand
 from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
+from torchhand.manipulation.snap import SNAP_TOL
 from torchhand.scene_io import export_scene_dir
 from torchhand.scenes import builtin_scene
 from torchhand.scenes.liu import (
     _GRASPS,
     LIU_SCENES,
     SHADOW_HAND,
+    TWO_HAND_SNAP_TOL,
     approach_scene,
     press_pose,
     roll_pinch,
     shadow_pose,
+    two_hand_pose,
 )
 
 SYNTH = ["--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000", "--solutions", "1",
@@ -66,6 +69,20 @@ ROLL_SNAP_TOL = 0.002
 """Snap tolerance of the liu-roll grasp, metres. The pinch leaves the thumb's proximal phalanx and the index's middle
 phalanx 3.0 and 2.4 mm from the cylinder (their capsules are thicker than the distal ones they carry); with the default
 5 mm they would become contacts too, and the grasp would no longer be a two-finger pinch."""
+
+
+def _snap(label: str, grasp: Grasp, hand, mesh, expected: set, *, tol: float = SNAP_TOL, exact: bool = True) -> Grasp:
+    """``snap_grasp`` with its report printed; stops unless the contact links are ``expected`` (``exact=False``:
+    include them)."""
+    snapped, report = snap_grasp(grasp, hand, mesh, tol=tol)
+    for line in report.lines():
+        print(f"{label} snap: {line}")
+    got = set(snapped.contact_links)
+    if (got != expected) if exact else not expected <= got:
+        raise SystemExit(f"{label}: expected {', '.join(sorted(expected))} {'as' if exact else 'among'} the contacts, "
+                         f"got {', '.join(snapped.contact_links)}")
+    _GRASPS.mkdir(exist_ok=True)
+    return snapped
 
 
 def make_roll(work: Path | None = None) -> Path:
@@ -90,13 +107,8 @@ def make_roll(work: Path | None = None) -> Path:
     q, T_hand_object = roll_pinch(hand)
     grasp = Grasp(hand="default", side="right", joint_names=tuple(hand.joint_names), q=q,
                   wrist_in_object=np.linalg.inv(T_hand_object), frame=0, length=0.19)
-    snapped, report = snap_grasp(grasp, grasp_hand(grasp), scene.object.mesh, tol=ROLL_SNAP_TOL)
-    for line in report.lines():
-        print(f"liu-roll snap: {line}")
-    if set(snapped.contact_links) != {"thumb_distal", "index_distal"}:
-        raise SystemExit(f"liu-roll: expected the thumb and index distal links as contacts, got "
-                         f"{', '.join(snapped.contact_links)}")
-    _GRASPS.mkdir(exist_ok=True)
+    snapped = _snap("liu-roll", grasp, grasp_hand(grasp), scene.object.mesh, {"thumb_distal", "index_distal"},
+                    tol=ROLL_SNAP_TOL)
     return save_grasp(snapped, _GRASPS / "liu-roll.npz", overwrite=True)
 
 
@@ -122,13 +134,7 @@ def make_press(work: Path | None = None) -> Path:
     q, T_object_hand = press_pose(hand)
     grasp = Grasp(hand="default", side="right", joint_names=tuple(hand.joint_names), q=q,
                   wrist_in_object=T_object_hand, frame=0, length=0.19)
-    snapped, report = snap_grasp(grasp, grasp_hand(grasp), scene.object.mesh)
-    for line in report.lines():
-        print(f"liu-press snap: {line}")
-    if set(snapped.contact_links) != PRESS_CONTACTS:
-        raise SystemExit(f"liu-press: expected {', '.join(sorted(PRESS_CONTACTS))} as contacts, got "
-                         f"{', '.join(snapped.contact_links)}")
-    _GRASPS.mkdir(exist_ok=True)
+    snapped = _snap("liu-press", grasp, grasp_hand(grasp), scene.object.mesh, PRESS_CONTACTS)
     return save_grasp(snapped, _GRASPS / "liu-press.npz", overwrite=True)
 
 
@@ -157,17 +163,44 @@ def make_shadow_lift(work: Path | None = None) -> Path:
     q, T_object_hand = shadow_pose(hand)
     grasp = Grasp(hand=scene.hands[0].model, side="right", joint_names=tuple(hand.joint_names), q=q,
                   wrist_in_object=T_object_hand, frame=0, length=0.19)
-    snapped, report = snap_grasp(grasp, hand, scene.object.mesh)
-    for line in report.lines():
-        print(f"liu-shadow-lift snap: {line}")
-    if not SHADOW_CONTACTS <= set(snapped.contact_links):
-        raise SystemExit(f"liu-shadow-lift: expected {', '.join(sorted(SHADOW_CONTACTS))} among the contacts, got "
-                         f"{', '.join(snapped.contact_links)}")
-    _GRASPS.mkdir(exist_ok=True)
+    snapped = _snap("liu-shadow-lift", grasp, hand, scene.object.mesh, SHADOW_CONTACTS, exact=False)
     return save_grasp(dataclasses.replace(snapped, hand=SHADOW_HAND), _GRASPS / "liu-shadow-lift.npz", overwrite=True)
 
 
+TWO_HAND_CONTACTS = {"thumb_metacarpal", "index_middle", "index_distal", "middle_middle", "middle_distal"}
+
+
+def make_two_hand_lift(work: Path | None = None) -> Path:
+    """The liu-two-hand-lift grasps (``liu-two-hand-lift.npz``, the right hand, and ``liu-two-hand-lift-left.npz``),
+    deterministic and without search (``work`` is not used):
+
+    1. each hand's flat posture and wrist on its side face (``two_hand_pose``);
+    2. ``snap_grasp`` with ``TWO_HAND_SNAP_TOL``: the thumb metacarpal and the index and middle fingers' middle and
+       distal links touch.
+
+    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): from the two-hand-box
+    scene's hand pose (the palm centre 9 mm off the face, fingers straight), a least-squares fit of the thumb joints
+    that takes the thumb 3 mm out of the face, then of the wrist and the finger joints with the palm and the four
+    fingers' middle links tangent to the face and every other link at least 3 mm off it.
+    """
+    scene = builtin_scene("liu-two-hand-lift")
+    out = None
+    for track in scene.hands:
+        hand = track_hand(track)
+        q, T_object_hand = two_hand_pose(track.side)
+        grasp = Grasp(hand="default", side=track.side, joint_names=tuple(hand.joint_names), q=q,
+                      wrist_in_object=T_object_hand, frame=0, length=0.19)
+        snapped = _snap(f"liu-two-hand-lift ({track.side})", grasp, hand, scene.object.mesh, TWO_HAND_CONTACTS,
+                        tol=TWO_HAND_SNAP_TOL)
+        name = "liu-two-hand-lift.npz" if out is None else f"liu-two-hand-lift-{track.side}.npz"
+        path = save_grasp(snapped, _GRASPS / name, overwrite=True)
+        out = out or path
+    return out
+
+
 def make(name: str, work: Path) -> Path:
+    if name == "liu-two-hand-lift":
+        return make_two_hand_lift(work)
     if name == "liu-shadow-lift":
         return make_shadow_lift(work)
     if name == "liu-roll":

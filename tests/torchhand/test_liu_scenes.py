@@ -17,6 +17,8 @@ from torchhand.cli import main as cli
 from torchhand.errors import MissingFileError
 from torchhand.hand.mount import track_hand
 from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
+from torchhand.manipulation.grasp import check_grasp_hand
+from torchhand.manipulation.plots import load_trace, torque_deviation
 from torchhand.manipulation.audit import contact_motion, mujoco_torque_error
 from torchhand.scenes import builtin_scene, list_builtin_scenes
 from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
@@ -28,6 +30,7 @@ from torchhand.scenes.liu import (
     PRESS_STIFFNESS,
     SHADOW_HAND,
     grasp_path,
+    grasp_paths,
     load_packaged_grasp,
 )
 
@@ -100,36 +103,44 @@ def test_scene_motions():
 
 @pytest.mark.parametrize("name", LIU_SCENES)
 def test_packaged_grasp_touches_the_object(name):
-    """The packaged grasp loads against the scene's hand (joint names, limits), and re-snapping it onto the scene's
-    object finds contacts within the 5 mm tolerance; the contact links' hand points lie within 5 mm of the mesh and
-    the object points on it, both measured with trimesh's closest-point query."""
+    """The packaged grasp (one per hand) loads against the scene's hand (joint names, limits), and re-snapping it
+    onto the scene's object finds contacts within the 5 mm tolerance; the contact links' hand points lie within 5 mm
+    of the mesh and the object points on it, both measured with trimesh's closest-point query."""
     _needs_shadow(name)
     scene = builtin_scene(name)
     path = grasp_path(name)
     assert path is not None and path.is_file() and path.name == f"{name}.npz"
-    hand = track_hand(scene.hands[0])
-    g = load_packaged_grasp(name, hand)
-    assert g.side == "right" and g.hand == scene.hands[0].model and len(g.contact_links) >= 2
-    if name == "liu-shadow-lift":
-        assert load_grasp(path).hand == SHADOW_HAND              # stored relative to the shared data
-        assert {"rh_ffdistal", "rh_mfdistal", "rh_rfdistal", "rh_thdistal"} <= set(g.contact_links)
-    elif name == "liu-roll":
-        assert set(g.contact_links) == {"thumb_distal", "index_distal"}
-    elif name == "liu-press":
-        assert set(g.contact_links) == {"thumb_distal", "index_distal", "middle_distal"}
-    else:
-        assert len(g.contact_links) >= 3
-    mesh = scene.object.mesh
-    pq = trimesh.proximity.ProximityQuery(mesh)
-    assert np.abs(pq.signed_distance(g.contact_object)).max() < 1e-6
-    T = hand.forward_kinematics(torch.as_tensor(g.q)[None], torch.as_tensor(g.wrist_in_object)[None])[0].numpy()
-    idx = [list(hand.link_names).index(n) for n in g.contact_links]
-    pts = np.einsum("kij,kj->ki", T[idx, :3, :3], g.contact_hand) + T[idx, :3, 3]
-    d = np.abs(pq.signed_distance(pts))
-    print(f"{name}: {len(idx)} contacts, hand points {1e3 * d.max():.2f} mm from the mesh at most")
-    assert d.max() <= 0.005
-    again, report = snap_grasp(g, grasp_hand(g), mesh)
-    assert set(g.contact_links) <= set(again.contact_links) and np.abs(report.after).max() <= 0.005
+    grasps = load_packaged_grasp(name)
+    grasps = grasps if isinstance(grasps, tuple) else (grasps,)
+    assert [g.side for g in grasps] == [h.side for h in scene.hands]
+    assert [p.name for p in grasp_paths(name)] == [f"{name}.npz"] + [f"{name}-{h.side}.npz" for h in scene.hands[1:]]
+    for track, g in zip(scene.hands, grasps):
+        hand = track_hand(track)
+        check_grasp_hand(g, hand)
+        assert g.hand == track.model and len(g.contact_links) >= 2
+        if name == "liu-shadow-lift":
+            assert load_grasp(path).hand == SHADOW_HAND              # stored relative to the shared data
+            assert {"rh_ffdistal", "rh_mfdistal", "rh_rfdistal", "rh_thdistal"} <= set(g.contact_links)
+        elif name == "liu-roll":
+            assert set(g.contact_links) == {"thumb_distal", "index_distal"}
+        elif name == "liu-press":
+            assert set(g.contact_links) == {"thumb_distal", "index_distal", "middle_distal"}
+        elif name == "liu-two-hand-lift":
+            assert set(g.contact_links) == {"thumb_metacarpal", "index_middle", "index_distal", "middle_middle",
+                                            "middle_distal"}
+        else:
+            assert len(g.contact_links) >= 3
+        mesh = scene.object.mesh
+        pq = trimesh.proximity.ProximityQuery(mesh)
+        assert np.abs(pq.signed_distance(g.contact_object)).max() < 1e-6
+        T = hand.forward_kinematics(torch.as_tensor(g.q)[None], torch.as_tensor(g.wrist_in_object)[None])[0].numpy()
+        idx = [list(hand.link_names).index(n) for n in g.contact_links]
+        pts = np.einsum("kij,kj->ki", T[idx, :3, :3], g.contact_hand) + T[idx, :3, 3]
+        d = np.abs(pq.signed_distance(pts))
+        print(f"{name} ({g.side}): {len(idx)} contacts, hand points {1e3 * d.max():.2f} mm from the mesh at most")
+        assert d.max() <= 0.005
+        again, report = snap_grasp(g, grasp_hand(g), mesh)
+        assert set(g.contact_links) <= set(again.contact_links) and np.abs(report.after).max() <= 0.005
 
 
 def test_grasp_path_is_none_for_other_names():
@@ -257,6 +268,60 @@ def test_shadow_lift_without_the_shared_data(tmp_path, monkeypatch, capsys):
     assert cli(["manipulate", "liu-shadow-lift", "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Shadow hand" in err[0] and not out.exists()
+
+
+def test_two_hand_lift_end_to_end(tmp_path, capsys):
+    """``torchhand manipulate liu-two-hand-lift``: two hands, one force plan. It completes and passes the checker
+    (which checks both hands, hand against hand included); each hand's stored torques (``torque_right``,
+    ``torque_left``) equal MuJoCo's on its own hand file with its own contacts; the static contacts do not slip;
+    both hands carry force, and together with the table they balance the box. The same grasps given as two
+    ``--grasp`` files give the same file."""
+    out = tmp_path / "two"
+    assert cli(["manipulate", "liu-two-hand-lift", "--out", str(out), "--threads", "1", "--no-progress"]) == 0
+    assert cli(["check", str(out)]) == 0
+    z = np.load(out / "solutions" / "sol_000.npz")
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["complete"] and (out / "hand_left.xml").is_file()
+    for side in ("right", "left"):
+        assert z[f"q_{side}"].shape == (48, 30) and z[f"torque_{side}"].shape == (48, 36)
+        assert z[f"torque_rest_{side}"].shape == (36,)
+    assert np.array_equal(z["q"], z["q_right"]) and np.array_equal(z["torque"], z["torque_right"])
+    names = np.array([str(n) for n in z["contact_link_name"]])
+    m = z["contact_mask"]
+    side_of = np.where(m, np.char.partition(names[np.maximum(z["contact_link"], 0)], "/")[..., 0], "")
+    for side in ("right", "left"):                      # each hand pushes on the box at every frame
+        push = (np.linalg.norm(z["contact_force"], axis=-1) * (side_of == side)).sum(1)
+        assert (push > 1.0).all(), side
+    pytest.importorskip("mujoco")
+    worst, scale = mujoco_torque_error(out)
+    motion = contact_motion(out)
+    print(f"liu-two-hand-lift: torques vs MuJoCo {100 * worst / scale:.1e} % of the largest; static contacts "
+          f"{motion.static_pairs}, largest speed {1e3 * motion.static_speed:.3f} mm/s")
+    assert worst <= 0.01 * scale
+    assert motion.static_pairs >= 48 and motion.static_speed <= 1e-3
+    # the torque-deviation plot adds both hands' |u - u_bar|^2
+    dev = torque_deviation(load_trace(out))
+    both = sum(((z[f"torque_{s}"] - z[f"torque_rest_{s}"][None]) ** 2) for s in ("right", "left"))
+    assert np.allclose(dev["wrist"], both[:, :6].sum(1)) and np.allclose(dev["joints"], both[:, 6:].sum(1))
+    again = tmp_path / "files"
+    files = [str(p) for p in grasp_paths("liu-two-hand-lift")][::-1]          # order does not matter
+    assert cli(["manipulate", "liu-two-hand-lift", "--grasp", files[0], "--grasp", files[1], "--out", str(again),
+                "--threads", "1", "--no-progress"]) == 0
+    z2 = np.load(again / "solutions" / "sol_000.npz")
+    assert all(np.array_equal(z[k], z2[k]) for k in z.files)
+
+
+def test_two_hand_grasp_errors(tmp_path, capsys):
+    """Two grasps of one side, or three grasps: one line, exit 2, nothing written."""
+    right = str(grasp_paths("liu-two-hand-lift")[0])
+    for extra in ([right, right], [right, right, right]):
+        out = tmp_path / f"out{len(extra)}"
+        args = ["manipulate", "liu-two-hand-lift", "--out", str(out), "--no-progress"]
+        for g in extra:
+            args += ["--grasp", g]
+        assert cli(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "grasp" in err[0] and not out.exists(), err
 
 
 def test_lift_adds_a_contact_and_a_lighter_box_does_not(tmp_path):

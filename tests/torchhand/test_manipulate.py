@@ -46,6 +46,19 @@ def runs(tmp_path_factory):
     return grasp, scene, out
 
 
+def _mujoco_model(directory):
+    mujoco = pytest.importorskip("mujoco")
+    m = mujoco.MjModel.from_xml_path(str(directory / "hand.xml"))
+    m.dof_armature[:] = 0
+    return mujoco, m
+
+
+def _quat(R):
+    from scipy.spatial.transform import Rotation
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
+
+
 def test_torques_match_mujoco(runs):
     """u = qfrc_bias + J^T f (mj_applyFT of the force on the object at the hand point), q_dot = q_ddot = 0, mapped to
     (torque about the root origin, force, joint torques), against the stored torque: within 1 % of the largest."""

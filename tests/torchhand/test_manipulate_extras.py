@@ -127,19 +127,28 @@ def test_balance_errors_with_an_external_wrench():
 
 # ------------------------------------------------------------------------------------------------ built-in grasps
 def test_builtin_scene_grasp_lookup(monkeypatch, tmp_path):
-    """A built-in scene name without --grasp uses ``torchhand.scenes.liu.grasp_path(name)``; None keeps the error."""
+    """A built-in scene name without --grasp uses ``torchhand.scenes.liu.grasp_path(name)``; None keeps the error;
+    --grasp given once per hand, at most twice."""
     import torchhand.scenes as scenes_pkg
-    from torchhand.cli.manipulate_cmd import _grasp_path
+    from torchhand.cli.manipulate_cmd import _grasp_paths
 
     shipped = tmp_path / "box-turn.grasp.npz"
     fake = types.ModuleType("torchhand.scenes.liu")
     fake.grasp_path = lambda name: shipped if name == "box-turn" else None
     monkeypatch.setitem(sys.modules, "torchhand.scenes.liu", fake)
     monkeypatch.setattr(scenes_pkg, "liu", fake, raising=False)
-    assert _grasp_path("box-turn", None) == shipped
-    assert _grasp_path("box-turn", "mine.npz").name == "mine.npz"
+    assert _grasp_paths("box-turn", None) == [shipped]
+    assert [p.name for p in _grasp_paths("box-turn", ["mine.npz"])] == ["mine.npz"]
+    assert [p.name for p in _grasp_paths("box-turn", ["r.npz", "l.npz"])] == ["r.npz", "l.npz"]
+    with pytest.raises(InputValueError, match="at most two"):
+        _grasp_paths("box-turn", ["a.npz", "b.npz", "c.npz"])
+    scene_dir = tmp_path / "two"                          # a scene directory: grasp.npz and grasp_<side>.npz
+    scene_dir.mkdir()
+    for name in ("scene.toml", "grasp.npz", "grasp_left.npz"):
+        (scene_dir / name).write_bytes(b"")
+    assert [p.name for p in _grasp_paths(str(scene_dir), None)] == ["grasp.npz", "grasp_left.npz"]
     with pytest.raises(InputValueError, match="--grasp: required for the built-in scene 'bottle-turn'"):
-        _grasp_path("bottle-turn", None)
+        _grasp_paths("bottle-turn", None)
     del fake.grasp_path                                   # a module without the function: the same error
     with pytest.raises(InputValueError, match="--grasp: required for the built-in scene 'box-turn'"):
-        _grasp_path("box-turn", None)
+        _grasp_paths("box-turn", None)

@@ -8,6 +8,10 @@ used unless ``--grasp`` names another) or a built-in scene name (its shipped gra
 ``--grasp`` is required). The grasp belongs to the first frame of the (``--frames``) range. A scene's
 ``external_wrench`` (docs/scene_format.md) is part of the wrench the contacts must balance.
 
+Two hands: give ``--grasp`` once per hand (each file names its side), or keep ``grasp.npz`` (the scene's first hand)
+and ``grasp_<side>.npz`` (the other) in the scene directory; the built-in ``liu-two-hand-lift`` ships both. Both
+hands' contacts share one force plan; ``torque_right`` and ``torque_left`` hold each hand's torques.
+
 Writes DIR/scene/ (with the synthesized wrist), DIR/hand.xml, DIR/solutions/sol_000.npz (with ``torque``,
 ``torque_rest`` and ``contact_added``) and DIR/stats.json (``method: "liu2009"``) (docs/result_format.md,
 docs/manipulation.md). When the grasp cannot realise the motion at frame k (counted from the first manipulated
@@ -31,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", help="a scene directory (with grasp.npz) or a built-in scene name (its shipped grasp, "
                                  "or --grasp)")
-    p.add_argument("--grasp", metavar="GRASP.npz", help="the grasp (default: SCENE/grasp.npz)")
+    p.add_argument("--grasp", metavar="GRASP.npz", action="append",
+                   help="the grasp (default: SCENE/grasp.npz); give it once per hand for two hands")
     p.add_argument("--out", required=True, help="output directory: new, empty, or an earlier result with --overwrite "
                                                 "(checked before any work)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing result directory")
@@ -57,6 +62,10 @@ def _builtin_grasp(name: str) -> Path | None:
     return None if path is None else Path(path)
 
 
+def _files(grasp_file) -> str | list:
+    return [str(f) for f in grasp_file] if isinstance(grasp_file, list) else str(grasp_file)
+
+
 def _packaged_grasp(name: str):
     """The grasp shipped with the built-in scene ``name``, its hand resolved (``torchhand.scenes.liu``)."""
     from ..scenes.liu import load_packaged_grasp
@@ -64,15 +73,20 @@ def _packaged_grasp(name: str):
     return load_packaged_grasp(name)
 
 
-def _grasp_path(scene_arg: str, grasp: str | None) -> Path:
-    if grasp is not None:
-        return Path(grasp)
+def _grasp_paths(scene_arg: str, grasp: list | None) -> list[Path]:
+    """The grasp files: ``--grasp`` (once per hand), else the scene directory's ``grasp.npz`` and its
+    ``grasp_right.npz`` / ``grasp_left.npz``, else the built-in scene's packaged grasp."""
+    if grasp:
+        if len(grasp) > 2:
+            raise InputValueError(f"--grasp: at most two (one per hand), got {len(grasp)}")
+        return [Path(g) for g in grasp]
     d = Path(scene_arg)
     if d.is_dir() and (d / "scene.toml").is_file():
-        return d / "grasp.npz"
+        return [d / "grasp.npz"] + [d / f"grasp_{side}.npz" for side in ("right", "left")
+                                    if (d / f"grasp_{side}.npz").is_file()]
     builtin = _builtin_grasp(scene_arg)
     if builtin is not None:
-        return builtin
+        return [builtin]
     raise InputValueError(f"--grasp: required for the built-in scene '{scene_arg}' (a scene directory uses its "
                           f"grasp.npz); make one with 'torchhand grasp'")
 
@@ -91,7 +105,8 @@ def run(args) -> int:
     if not args.max_force > 0:
         raise InputValueError(f"--max-force: expected a positive number of newtons, got {args.max_force:g}")
     threads = apply_threads(args.threads)
-    grasp_file = _grasp_path(args.scene, args.grasp)
+    grasp_files = _grasp_paths(args.scene, args.grasp)
+    grasp_file = grasp_files[0] if len(grasp_files) == 1 else grasp_files
     writer = prepare_output(args.out, overwrite=args.overwrite)      # before any work
     try:
         scene = load_scene(args.scene)
@@ -99,8 +114,16 @@ def run(args) -> int:
             scene = scene.with_frames(*_frames(args.frames, scene.T))
         if args.window > scene.T:
             raise InputValueError(f"--window: expected at most the {scene.T} frames of the motion, got {args.window}")
-        packaged = args.grasp is None and grasp_file == _builtin_grasp(args.scene)
-        grasp = _packaged_grasp(args.scene) if packaged else load_grasp(grasp_file)
+        packaged = not args.grasp and grasp_files == [_builtin_grasp(args.scene)]
+        if packaged:
+            grasp = _packaged_grasp(args.scene)
+            if isinstance(grasp, tuple):                    # a two-hand built-in scene: its grasp files
+                from ..scenes.liu import grasp_paths
+
+                grasp_file = grasp_paths(args.scene)
+        else:
+            grasps = [load_grasp(f) for f in grasp_files]
+            grasp = grasps[0] if len(grasps) == 1 else grasps
         settings = ManipulationSettings(
             plan=PlanSettings(window=args.window, max_contact_force=args.max_force),
             synth=SynthSettings(objective="pose" if args.no_objective else "torque"))
@@ -117,7 +140,7 @@ def run(args) -> int:
         if err.partial is None:
             writer.abandon()
         else:
-            out = write_manipulation(err.partial, writer=writer, unsuitable=err, grasp_file=str(grasp_file),
+            out = write_manipulation(err.partial, writer=writer, unsuitable=err, grasp_file=_files(grasp_file),
                                      threads=threads)
             where = f"frames 0-{err.partial.T - 1} written to {out} (stats.json: complete false)"
         print(f"torchhand: grasp unsuitable for this motion at frame {err.frame}: {_deficit(err)}; {where}",
@@ -128,7 +151,7 @@ def run(args) -> int:
         writer.abandon()
         raise
     bar.close()
-    out = write_manipulation(result, writer=writer, grasp_file=str(grasp_file), threads=threads)
+    out = write_manipulation(result, writer=writer, grasp_file=_files(grasp_file), threads=threads)
     t = result.timings["total_s"]
     print(f"{scene.name}: {result.T} frames in {t:.1f} s ({result.T / t:.1f} frames/s), {result.num_added} contact(s) "
           f"added; wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {out}/solutions/sol_000.npz")

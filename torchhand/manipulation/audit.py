@@ -36,41 +36,58 @@ def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     return np.array([w, x, y, z])
 
 
+def _sides(d: Path, z: dict) -> list[tuple]:
+    """Per hand of the result: (side or None for one hand, its hand file, q (T, D), root (T, 4, 4), torque
+    (T, 6 + D), joint names, the prefix of its contact link names)."""
+    from ..scene import load_scene
+
+    sides = [h.side for h in load_scene(d / "scene").hands]
+    if len(sides) == 1 or "q_" + sides[0] not in z:
+        return [(None, d / "hand.xml", z["q"], z["root_pose"], z["torque"], [str(n) for n in z["joint_names"]], "")]
+    return [(s, d / ("hand.xml" if i == 0 else f"hand_{s}.xml"), z[f"q_{s}"], z[f"root_pose_{s}"], z[f"torque_{s}"],
+             [str(n) for n in z[f"joint_names_{s}"]], f"{s}/") for i, s in enumerate(sides)]
+
+
 def mujoco_torque_error(result_dir) -> tuple[float, float]:
-    """(largest |stored torque - MuJoCo's| over the frames and generalised forces, largest |stored torque|) of a
-    one-hand manipulation result directory (module docstring). Raises ImportError without ``mujoco``."""
+    """(largest |stored torque - MuJoCo's| over the frames, generalised forces and hands, largest |stored torque|)
+    of a manipulation result directory (module docstring; two hands: each hand's file and ``torque_<side>``, with
+    its own contacts). Raises ImportError without ``mujoco``."""
     import mujoco
 
     d = Path(result_dir)
-    m = mujoco.MjModel.from_xml_path(str(d / "hand.xml"))
-    m.dof_armature[:] = 0
     with np.load(d / "solutions" / "sol_000.npz") as f:
         z = {k: f[k] for k in f.files}
-    names = [str(n) for n in z["joint_names"]]
-    jid = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
-    if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or min(jid) <= 0:
-        raise ValueError(f"{d / 'hand.xml'}: expected a free root joint and the result's joints")
-    qadr, dadr = m.jnt_qposadr[jid], m.jnt_dofadr[jid]
-    data = mujoco.MjData(m)
     link_names = [str(n) for n in z["contact_link_name"]]
-    worst, scale = 0.0, float(np.abs(z["torque"]).max())
-    D = len(names)
-    for t in range(z["q"].shape[0]):
-        root = z["root_pose"][t]
-        data.qpos[:] = m.qpos0
-        data.qpos[:3], data.qpos[3:7], data.qpos[qadr] = root[:3, 3], _quat_wxyz(root[:3, :3]), z["q"][t]
-        data.qvel[:] = 0
-        mujoco.mj_forward(m, data)
-        qfrc = data.qfrc_bias.copy()
-        for k in np.flatnonzero(z["contact_mask"][t]):
-            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, link_names[z["contact_link"][t, k]])
-            point = data.xmat[body].reshape(3, 3) @ z["contact_hand_local"][t, k] + data.xpos[body]
-            mujoco.mj_applyFT(m, data, z["contact_force"][t, k], np.zeros(3), point, body, qfrc)
-        S = np.zeros((m.nv, 6 + D))
-        S[0:3, 3:6] = np.eye(3)
-        S[3:6, 0:3] = root[:3, :3].T
-        S[dadr, 6 + np.arange(D)] = 1
-        worst = max(worst, float(np.abs(S.T @ qfrc - z["torque"][t]).max()))
+    worst, scale = 0.0, 0.0
+    for _, xml, q_all, roots, torque, names, prefix in _sides(d, z):
+        m = mujoco.MjModel.from_xml_path(str(xml))
+        m.dof_armature[:] = 0
+        jid = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
+        if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or min(jid) <= 0:
+            raise ValueError(f"{xml}: expected a free root joint and the result's joints")
+        qadr, dadr = m.jnt_qposadr[jid], m.jnt_dofadr[jid]
+        data = mujoco.MjData(m)
+        scale = max(scale, float(np.abs(torque).max()))
+        D = len(names)
+        for t in range(q_all.shape[0]):
+            root = roots[t]
+            data.qpos[:] = m.qpos0
+            data.qpos[:3], data.qpos[3:7], data.qpos[qadr] = root[:3, 3], _quat_wxyz(root[:3, :3]), q_all[t]
+            data.qvel[:] = 0
+            mujoco.mj_forward(m, data)
+            qfrc = data.qfrc_bias.copy()
+            for k in np.flatnonzero(z["contact_mask"][t]):
+                name = link_names[z["contact_link"][t, k]]
+                if not name.startswith(prefix):
+                    continue                               # the other hand's contact
+                body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name[len(prefix):])
+                point = data.xmat[body].reshape(3, 3) @ z["contact_hand_local"][t, k] + data.xpos[body]
+                mujoco.mj_applyFT(m, data, z["contact_force"][t, k], np.zeros(3), point, body, qfrc)
+            S = np.zeros((m.nv, 6 + D))
+            S[0:3, 3:6] = np.eye(3)
+            S[3:6, 0:3] = root[:3, :3].T
+            S[dadr, 6 + np.arange(D)] = 1
+            worst = max(worst, float(np.abs(S.T @ qfrc - torque[t]).max()))
     return worst, scale
 
 
@@ -97,17 +114,22 @@ class ContactMotion:
 
 
 def contact_motion(result_dir) -> ContactMotion:
-    """:class:`ContactMotion` of a one-hand manipulation result directory (module docstring): the hand is the
-    result's own (``load_result``), the points its stored link-frame and object-frame contact points."""
+    """:class:`ContactMotion` of a manipulation result directory (module docstring): the hands are the result's
+    own (``load_result``; two hands: each contact on its side's hand and motion), the points its stored link-frame
+    and object-frame contact points."""
     from ..result import load_result
 
     res = load_result(result_dir)
-    hand = next(iter(res.hand_models.values()))
     with np.load(Path(result_dir) / "solutions" / "sol_000.npz") as f:
         z = {k: f[k] for k in f.files}
     pose, fps = z["object_pose"], float(z["fps"])
+    # per contact link name: its hand model, that hand's motion and the link's index in it
+    per_name = {}
+    for side, _, q_all, roots, _, _, prefix in _sides(Path(result_dir), z):
+        hand = res.hand_models[side] if side is not None else next(iter(res.hand_models.values()))
+        for i, n in enumerate(hand.link_names):
+            per_name[prefix + n] = (hand, q_all, roots, i)
     names = [str(s) for s in z["contact_link_name"]]
-    link_ids = np.array([list(hand.link_names).index(s) for s in names])
     slot = z["contact_slot"]
     static_speed, static_pairs, cos = 0.0, 0, []
     for t in range(1, pose.shape[0]):
@@ -116,12 +138,12 @@ def contact_motion(result_dir) -> ContactMotion:
             i = prev_col.get(int(slot[t, j]))
             if i is None:
                 continue
-            link = link_ids[z["contact_link"][t - 1, i]]
+            hand, q_all, roots, link = per_name[names[z["contact_link"][t - 1, i]]]
             h, p = z["contact_hand_local"][t - 1, i], z["contact_object_local"][t - 1, i]
             rel = []
             for s in (t - 1, t):
-                T = hand.forward_kinematics(torch.as_tensor(z["q"][s])[None],
-                                            torch.as_tensor(z["root_pose"][s])[None])[0, link].numpy()
+                T = hand.forward_kinematics(torch.as_tensor(q_all[s])[None],
+                                            torch.as_tensor(roots[s])[None])[0, link].numpy()
                 rel.append(T[:3, :3] @ h + T[:3, 3] - (pose[s][:3, :3] @ p + pose[s][:3, 3]))
             v = (rel[1] - rel[0]) * fps
             n = z["contact_normal"][t, j]

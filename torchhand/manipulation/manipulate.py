@@ -42,6 +42,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
+from ..errors import InputValueError
 from ..kernels.convex_qp import solve_convex_qp
 from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
 from ..kernels.status import SolverStatus
@@ -56,7 +57,7 @@ RELEASE_GAP = 5e-4
 """A grasp contact whose link capsule stays farther than this from the object (or deeper in it) after the first
 frame is released (metres): the capsule model cannot realise it without moving the other contacts."""
 
-__all__ = ["ManipulationSettings", "ManipulationResult", "manipulate", "solution_arrays", "write_manipulation",
+__all__ = ["HandMotion", "ManipulationSettings", "ManipulationResult", "manipulate", "solution_arrays", "write_manipulation",
            "GraspUnsuitable"]
 
 
@@ -67,6 +68,23 @@ class ManipulationSettings:
 
     plan: PlanSettings = field(default_factory=PlanSettings)
     synth: SynthSettings = field(default_factory=SynthSettings)
+
+
+@dataclass(frozen=True, eq=False)
+class HandMotion:
+    """One hand's synthesized motion (NumPy, float64; T frames, D of its joints).
+
+    side: "right" | "left"; hand: its HandModel; grasp: its (snapped) grasp
+    q: (T, D) rad; root: T_world_hand, (T, 4, 4); torque: u^k, (T, 6 + D); torque_rest: u_bar, (6 + D,)
+    """
+
+    side: str
+    hand: object
+    grasp: Grasp
+    q: np.ndarray
+    root: np.ndarray
+    torque: np.ndarray
+    torque_rest: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,6 +109,9 @@ class ManipulationResult:
     ``per_frame_s``)
     deferred: times an added contact was still apart (more than ``plan.TOUCH_TOL``) at the frame it was to carry
     force first, so that frame was planned and synthesized again without it
+    hands: every hand's :class:`HandMotion`, in the grasps' order; with two hands ``grasp``, ``hand``, ``q``,
+    ``root``, ``torque`` and ``torque_rest`` above are the first hand's, and ``contact_link`` numbers the links of
+    all hands (hand j's link l is ``sum of the earlier hands' link counts + l``)
     """
 
     scene: object
@@ -125,6 +146,7 @@ class ManipulationResult:
     mass: float
     timings: dict = field(default_factory=dict)
     deferred: int = 0
+    hands: tuple = ()
 
     @property
     def T(self) -> int:
@@ -181,16 +203,20 @@ def _reproject_once(run, k: int, f_plan: np.ndarray, lam_plan: np.ndarray):
     return (basis @ lam[..., None]).squeeze(-1).numpy(), lam.numpy(), status
 
 
-def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None, *, hand=None,
+def manipulate(scene, grasp, settings: ManipulationSettings | None = None, *, hand=None,
                progress=None) -> ManipulationResult:
     """Synthesize the hand motion that realises ``scene``'s object motion from ``grasp`` (module docstring).
 
     Args:
-        scene: a :class:`~torchhand.scene.Scene` (object, pose track, friction, table); its hand track is only the
-            side; the wrist is synthesized
-        grasp: the grasp at the scene's frame 0 (snapped here when it has no contacts)
+        scene: a :class:`~torchhand.scene.Scene` (object, pose track, friction, table); its hand tracks give only
+            the sides and their order; the wrists are synthesized
+        grasp: the grasp at the scene's frame 0 (snapped here when it has no contacts), or one grasp per hand for
+            two hands (a sequence, sides different; put in the scene's hand order). Two hands share one force plan
+            per window (every contact of both in Eq. 4; an added contact goes to the hand of the contact it comes
+            from) and the re-projection; each hand is synthesized with its own contacts and forces.
         settings: :class:`ManipulationSettings`
-        hand: the grasp's hand model (default :func:`~torchhand.manipulation.grasp.grasp_hand`)
+        hand: the grasp's hand model (default :func:`~torchhand.manipulation.grasp.grasp_hand`), or a sequence
+            matching the grasps
         progress: called as ``progress(k, T, seconds)`` after each frame, or None
 
     Returns:
@@ -209,37 +235,57 @@ def manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None = None
     """
     from threadpoolctl import threadpool_limits
 
+    if not isinstance(grasp, Grasp):                     # one grasp per hand, in the scene's hand order
+        grasps = list(grasp)
+        hands = list(hand) if isinstance(hand, (list, tuple)) else [hand] * len(grasps)
+        sides = [h.side for h in scene.hands]
+        rank = {s: i for i, s in enumerate(sides)}
+        if any(g.side not in rank for g in grasps):
+            raise InputValueError(f"grasp: sides {', '.join(g.side for g in grasps)}; the scene has "
+                                  f"{', '.join(sides)}")
+        order = sorted(range(len(grasps)), key=lambda i: rank[grasps[i].side])
+        grasp = tuple(grasps[i] for i in order) if len(grasps) > 1 else grasps[0]
+        hand = (tuple(hands[i] for i in order) if len(grasps) > 1 else hands[0]) if hands else None
     with threadpool_limits(limits=1, user_api="blas"):
         return _manipulate(scene, grasp, settings, hand=hand, progress=progress)
 
 
-def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, hand, progress) -> ManipulationResult:
+def _manipulate(scene, grasp, settings: ManipulationSettings | None, *, hand, progress) -> ManipulationResult:
     settings = settings or ManipulationSettings()
     ps, ss = settings.plan, settings.synth
     t_start = time.perf_counter()
     run = _plan._start(scene, grasp, ps, hand)
     geo, c = run.geo, run.c
-    hand = geo.hand
-    grasp = run.grasp
+    grasps = run.grasp if isinstance(run.grasp, tuple) else (run.grasp,)
+    NH = len(grasps)
     T = geo.T
     pose = geo.pose
     H0 = len(c.link)
-    q0 = grasp.q.copy()
-    root0 = pose[0] @ grasp.wrist_in_object
     links0 = np.array(c.link)
     env = scene.environment
-    ctx = SynthContext(hand, scene.object.mesh, np.zeros(6 + hand.num_joints), scene.fps,
-                       env.table_height if env.table else None, tuple(scene.gravity.double().tolist()), ss)
-    u_bar = torques(hand, q0[None], root0[None], links0, np.stack(c.h)[None], run.f_init_vals[:H0])[0]
-    ctx.u_bar = u_bar
+    table = env.table_height if env.table else None
+    gravity = tuple(scene.gravity.double().tolist())
+    ctxs, frames, u_bar = [], [], []
+    for j, g in enumerate(grasps):
+        hj = geo.hands[j]
+        ctx = SynthContext(hj, scene.object.mesh, np.zeros(6 + hj.num_joints), scene.fps, table, gravity, ss)
+        root0 = pose[0] @ g.wrist_in_object
+        sel = _of_hand(geo, links0, j)
+        ctx.u_bar = torques(hj, g.q[None], root0[None], links0[sel] - geo.link_offset[j], np.stack(c.h)[sel][None],
+                            run.f_init_vals[:H0][sel])[0]
+        ctxs.append(ctx)
+        u_bar.append(ctx.u_bar)
+        frames.append((g.q.copy(), root0))
     t_stage1 = time.perf_counter()
-    prev = HandFrame(q=q0, root=root0, h=np.stack(c.h), p=np.stack(c.p))
+    prev = _Hands(frames, np.stack(c.h), np.stack(c.p))
     pose_prev = pose[0]
     added_k: dict = {}
     f_prev, z = run.f_init_vals, None
     rows, per_frame, t_plan, t_synth = [], [], 0.0, 0.0
     geo.reach_step = ss.joint_speed / float(scene.fps)      # added contacts must be reachable (plan._candidate)
     deferred = 0
+    timings = lambda: {"stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,  # noqa: E731
+                       "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame}
     for k in range(T):
         t0 = time.perf_counter()
         H_before = len(c.link)
@@ -249,15 +295,14 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
                 f_k, z = _plan._step(run, k, f_prev, z_in)
             except GraspUnsuitable as err:                  # keep the frames done before it (None when none)
                 err.window = k
-                while rows and not _rebalance_last(run, rows, scene, settings):
+                while rows and not _rebalance_last(run, ctxs, rows, scene, settings):
                     rows.pop()                              # its forces cannot balance the cut scene: not written
-                err.partial = None if not rows else _collect(scene, grasp, hand, settings, run, rows, u_bar, {
-                    "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
-                    "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame}, deferred)
+                err.partial = None if not rows else _collect(scene, grasps, ctxs, settings, run, rows, u_bar,
+                                                             timings(), deferred)
                 raise
             t1 = time.perf_counter()
-            res, _, closing, active, slide, links, prev_k, f_k, lam_k = _synth_frame(
-                run, ctx, k, f_k, prev, pose_prev, H_before, added_k, ss)
+            res, closing, active, slide, links, prev_k, f_k, lam_k = _synth_frame(
+                run, ctxs, k, f_k, prev, pose_prev, H_before, added_k, ss)
             # an added contact carries force only once it touches (Liu: the slack "reaches zero at the frame when the
             # contact is established"): one still apart after its first frame waits a frame and frame k is planned
             # and synthesized again without it (contacts added then must touch already, plan._candidate)
@@ -273,19 +318,19 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         H = len(c.link)
         source = np.array(c.source)
         n_w = np.stack(c.n) @ pose[k][:3, :3].T
-        q, root, h = res.frame.q, res.frame.root, res.frame.h
+        h = res.h
         if k == 0:                                         # grasp contacts the capsule model cannot close: released
             for i in np.flatnonzero(active & (np.abs(res.gap) > RELEASE_GAP)):
                 c.start[i] = T
                 active[i] = False
         # object points from Eq. 6, projected onto the mesh, with the mesh's normal (one kinematics pass of frame k
-        # serves them, the torques and the material points of h^{k-1} below)
-        ts = tree_state(ctx.order, q, root)
-        x = _link_points(ts, links, h)
+        # per hand serves them, the torques and the material points of h^{k-1} below)
+        ts = [tree_state(ctxs[j].order, q, root) for j, (q, root) in enumerate(res.frames)]
+        x = _hand_points(geo, ts, links, h)
         Rs, os_ = pose[k][:3, :3], pose[k][:3, 3]
         p_obj = (x - os_) @ Rs
         p_proj = np.asarray(scene.object.mesh.nearest.on_surface(p_obj)[0])      # closest points (no sign needed)
-        n_in = -ctx.object_normals(p_proj)
+        n_in = -ctxs[0].object_normals(p_proj)
         p_new = prev.p.copy()
         for i in range(H):
             if active[i]:
@@ -298,10 +343,15 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         snap = dataclasses.replace(c, link=list(c.link), h=list(c.h), p=list(c.p), n=list(c.n), t1=list(c.t1),
                                    start=list(c.start), source=list(c.source), h_obj=list(c.h_obj),
                                    slide=dict(c.slide))      # the contacts as frame k was re-projected with
-        u = static_torques(ctx.order, ts, links[active], h[active], f_fin[:H][active], ctx.gravity)
+        u = []
+        for j in range(NH):
+            sel = _of_hand(geo, links, j) & active
+            u.append(static_torques(ctxs[j].order, ts[j], links[sel] - geo.link_offset[j], h[sel], f_fin[:H][sel],
+                                    ctxs[j].gravity))
         # contact states for frame k+1 (Eq. 7's relative velocity of the material points)
-        xm = _link_points(ts, links, prev.h)
-        x_prev = _frame_points(hand, prev, links, prev.h)
+        xm = _hand_points(geo, ts, links, prev.h)
+        x_prev = _hand_points(geo, [tree_state(ctxs[j].order, q, root) for j, (q, root) in enumerate(prev.frames)],
+                              links, prev.h)
         d_now = xm - (prev.p @ Rs.T + os_)
         d_before = x_prev - (prev.p @ pose_prev[:3, :3].T + pose_prev[:3, 3])
         v = (d_now - d_before) * scene.fps
@@ -312,12 +362,13 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         for i in range(H):
             if active[i] and not closing[i] and speed[i] > ss.slip_speed:
                 c.slide[i] = v_t[i]
-        rows.append(dict(H=H, q=q, root=root, u=u, h=h.copy(), p=p_new.copy(), point=np.stack(c.p) @ Rs.T + os_,
+        rows.append(dict(H=H, frames=res.frames, u=u, h=h.copy(), p=p_new.copy(), point=np.stack(c.p) @ Rs.T + os_,
                          normal=np.stack(c.n) @ Rs.T, force=f_fin, lam=lam_fin, plan=f_k.copy(), active=active,
                          sliding=sliding_now & active, added=active & (source >= 0), obj=res.objective,
                          it=res.iterations, conv=res.converged, viol=res.violation, rstatus=rstatus, snap=snap))
-        geo.move_hand(q, np.linalg.inv(pose[k]) @ root)
-        prev = HandFrame(q=q, root=root, h=h, p=p_new)
+        for j, (q, root) in enumerate(res.frames):
+            geo.move_hand(q, np.linalg.inv(pose[k]) @ root, j)
+        prev = _Hands(res.frames, h, p_new)
         pose_prev = pose[k]
         f_prev = f_fin
         t2 = time.perf_counter()
@@ -326,12 +377,37 @@ def _manipulate(scene, grasp: Grasp, settings: ManipulationSettings | None, *, h
         per_frame.append(t2 - t0)
         if progress is not None:
             progress(k, T, t2 - t_start)
-    return _collect(scene, grasp, hand, settings, run, rows, u_bar, {
-        "stage1_s": t_stage1 - t_start, "plan_s": t_plan, "synth_s": t_synth,
-        "total_s": time.perf_counter() - t_start, "per_frame_s": per_frame}, deferred)
+    return _collect(scene, grasps, ctxs, settings, run, rows, u_bar, timings(), deferred)
 
 
-def _rebalance_last(run, rows: list, scene, settings: ManipulationSettings) -> bool:
+@dataclass(frozen=True, eq=False)
+class _Hands:
+    """Every hand at one frame: (q (D_j,), root (4, 4)) per hand, and the contacts' points (H, 3) in their link's
+    frame (h) and the object frame (p), in contact order (the contacts of all hands)."""
+
+    frames: list
+    h: np.ndarray
+    p: np.ndarray
+
+
+def _of_hand(geo, links: np.ndarray, j: int) -> np.ndarray:
+    """(H,) bool: the contacts (numbered links ``links``) of hand j."""
+    links = np.asarray(links)
+    return (links >= geo.link_offset[j]) & (links < geo.link_offset[j + 1])
+
+
+def _hand_points(geo, ts: list, links: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """World positions (H, 3) of the link-frame points ``local`` on the numbered ``links``, each from its hand's
+    :func:`~.torque_derivs.tree_state` in ``ts``."""
+    out = np.zeros((len(links), 3))
+    for j, t in enumerate(ts):
+        sel = _of_hand(geo, links, j)
+        if sel.any():
+            out[sel] = _link_points(t, links[sel] - geo.link_offset[j], np.asarray(local)[sel])
+    return out
+
+
+def _rebalance_last(run, ctxs, rows: list, scene, settings: ManipulationSettings) -> bool:
     """A partial result is the result of the scene cut to its frames, whose required wrench at the last frame
     differs (one-sided differences at the end of the motion instead of central ones): re-project that frame's
     forces onto it (addition (c)) and recompute its torques, so the partial result balances its own scene.
@@ -359,25 +435,33 @@ def _rebalance_last(run, rows: list, scene, settings: ManipulationSettings) -> b
     H_row = r["H"]
     links = np.array(c.link[:H_row])
     r["force"], r["lam"], r["rstatus"] = f, lam, status
-    r["u"] = torques(geo.hand, r["q"][None], r["root"][None], links[m], r["h"][m][None], f[:H_row][m])[0]
+    for j, (q, root) in enumerate(r["frames"]):
+        sel = _of_hand(geo, links, j) & m
+        r["u"][j] = torques(geo.hands[j], q[None], root[None], links[sel] - geo.link_offset[j], r["h"][sel][None],
+                            f[:H_row][sel], ctxs[j].gravity)[0]
     return True
 
 
-def _synth_frame(run, ctx, k: int, f_k: np.ndarray, prev: HandFrame, pose_prev: np.ndarray, H_before: int,
+def _synth_frame(run, ctxs, k: int, f_k: np.ndarray, prev: _Hands, pose_prev: np.ndarray, H_before: int,
                  added_k: dict, ss):
-    """Synthesize frame k with the forces F_k just planned (Sec. 5): the contacts' states at k (active, closing,
-    sliding) and the receding slack of the added contacts that are not active yet,
+    """Synthesize frame k with the forces F_k just planned (Sec. 5), each hand with its own contacts: the contacts'
+    states at k (active, closing, sliding) and the receding slack of the added contacts that are not active yet,
     ``sigma_j(k) = d_j (t_e - k) / (t_e - t_a)`` (t_a the frame that added it, t_e its first active frame, d_j its
-    gap at t_a). Records (t_a, d_j) of contacts added since frame k-1 in ``added_k``.
-    Returns (FrameResult, approach, closing (H,), active (H,), slide (H,), links (H,), the frame k-1 with the added
-    contacts' points appended, F_k, lambda_k)."""
-    c, geo, hand, pose = run.c, run.geo, run.geo.hand, run.geo.pose
+    gap at t_a). Records (t_a, d_j) of contacts added since frame k-1 in ``added_k``. The hands share only the
+    object and its forces (planned together); their syntheses are separate.
+    Returns (result: ``frames`` [(q, root)] per hand, ``h`` (H, 3), ``gap`` (H,), ``objective`` (sum over the hands),
+    ``iterations`` (largest), ``converged`` (all), ``violation`` (largest); closing (H,), active (H,), slide (H,),
+    links (H,), the frame k-1 with the added contacts' points appended, F_k, lambda_k)."""
+    c, geo, pose = run.c, run.geo, run.geo.pose
     lam_k = run.out[-1][1]
     H = len(c.link)
     links = np.array(c.link)
     for i in range(H_before, H):                       # contacts added by this window
         if i not in added_k:
-            x = _frame_points(hand, prev, links[i:i + 1], np.stack(c.h)[i:i + 1])[0]
+            j = geo.hand_of(links[i])
+            q, root = prev.frames[j]
+            x = _frame_points(geo.hands[j], HandFrame(q=q, root=root, h=None, p=None),
+                              links[i:i + 1] - geo.link_offset[j], np.stack(c.h)[i:i + 1])[0]
             added_k[i] = (k, float(np.linalg.norm(x - (pose[k][:3, :3] @ c.p[i] + pose[k][:3, 3]))))
     start = np.array(c.start)
     source = np.array(c.source)
@@ -391,17 +475,36 @@ def _synth_frame(run, ctx, k: int, f_k: np.ndarray, prev: HandFrame, pose_prev: 
     Hp = len(prev.h)
     h_prev = np.concatenate([prev.h, np.stack(c.h)[Hp:]], 0) if H > Hp else prev.h
     p_prev = np.concatenate([prev.p, np.stack(c.p)[Hp:]], 0) if H > Hp else prev.p
-    prev = HandFrame(q=prev.q, root=prev.root, h=h_prev, p=p_prev)
+    prev = _Hands(prev.frames, h_prev, p_prev)
     normals_prev = np.stack(c.n)
     n_w = normals_prev @ pose[k][:3, :3].T
     t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
     slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu, ss.boundary))
                       for i in range(H)])
     rel = pose[k] @ np.linalg.inv(pose_prev)
-    guess = HandFrame(q=prev.q.copy(), root=rel @ prev.root, h=prev.h.copy(), p=prev.p)
-    res = synthesize_frame(ctx, prev, guess, links, f_k[:H], active, pose[k], pose_prev, normals_prev, slide,
-                           approach, closing, settle=k == 0)
-    return res, approach, closing, active, slide, links, prev, f_k, lam_k
+    out_frames, h_new, gap = [], h_prev.copy(), np.zeros(H)
+    objective, iterations, converged, violation = 0.0, 0, True, 0.0
+    for j, ctx in enumerate(ctxs):
+        sel = np.flatnonzero(_of_hand(geo, links, j))
+        local = {int(i): a for a, i in enumerate(sel)}
+        q, root = prev.frames[j]
+        before = HandFrame(q=q, root=root, h=h_prev[sel], p=p_prev[sel])
+        guess = HandFrame(q=q.copy(), root=rel @ root, h=h_prev[sel].copy(), p=p_prev[sel])
+        res = synthesize_frame(ctx, before, guess, links[sel] - geo.link_offset[j], f_k[:H][sel], active[sel],
+                               pose[k], pose_prev, normals_prev[sel], slide[sel],
+                               {local[i]: v for i, v in approach.items() if i in local}, closing[sel],
+                               settle=k == 0)
+        out_frames.append((res.frame.q, res.frame.root))
+        h_new[sel] = res.frame.h
+        if res.gap is not None:
+            gap[sel] = res.gap
+        objective += res.objective
+        iterations = max(iterations, res.iterations)
+        converged = converged and res.converged
+        violation = max(violation, res.violation)
+    out = SimpleNamespace(frames=out_frames, h=h_new, gap=gap, objective=objective, iterations=iterations,
+                          converged=converged, violation=violation)
+    return out, closing, active, slide, links, prev, f_k, lam_k
 
 
 def _frame_points(hand, frame: HandFrame, links, local) -> np.ndarray:
@@ -419,24 +522,30 @@ def _link_points(ts, links, local) -> np.ndarray:
     return np.einsum("pij,pj->pi", Tl[:, :3, :3], np.asarray(local)) + Tl[:, :3, 3]
 
 
-def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings, deferred: int = 0) -> ManipulationResult:
+def _collect(scene, grasps, ctxs, settings, run, rows, u_bar, timings, deferred: int = 0) -> ManipulationResult:
     """The result of the frames in ``rows`` (all of them, or the first ``len(rows)`` when the motion stopped early:
     then the scene is cut to those frames and the slots are the contacts that existed when it stopped)."""
     geo, c = run.geo, run.c
     T, E, K = len(rows), geo.E, max(r["H"] for r in rows)     # K = len(c.link) when every frame was done
     if T < geo.T:
         scene = scene.with_frames(0, T)
-    D = hand.num_joints
     z3 = lambda: np.zeros((T, K, 3))  # noqa: E731
-    out = dict(q=np.zeros((T, D)), root=np.zeros((T, 4, 4)), torque=np.zeros((T, 6 + D)),
-               contact_mask=np.zeros((T, K), bool), contact_hand_local=z3(), contact_object_local=z3(),
+    out = dict(contact_mask=np.zeros((T, K), bool), contact_hand_local=z3(), contact_object_local=z3(),
                contact_point=z3(), contact_normal=z3(), contact_force=z3(), contact_lambda=np.zeros((T, K, 4)),
                planned_force=z3(), contact_sliding=np.zeros((T, K), bool), contact_added=np.zeros((T, K), bool),
                env_force=np.zeros((T, E, 3)), objective=np.zeros(T), iterations=np.zeros(T, np.int64),
                converged=np.zeros(T, bool), violation=np.zeros(T), reproject_status=np.zeros(T, np.int8))
+    per_hand = []
+    for j, (g, ctx) in enumerate(zip(grasps, ctxs)):
+        D = ctx.hand.num_joints
+        q, root, torque = np.zeros((T, D)), np.zeros((T, 4, 4)), np.zeros((T, 6 + D))
+        for t, r in enumerate(rows):
+            q[t], root[t] = r["frames"][j]
+            torque[t] = r["u"][j]
+        per_hand.append(HandMotion(side=g.side, hand=ctx.hand, grasp=g, q=q, root=root, torque=torque,
+                                   torque_rest=u_bar[j]))
     for t, r in enumerate(rows):
         H = r["H"]
-        out["q"][t], out["root"][t], out["torque"][t] = r["q"], r["root"], r["u"]
         m = r["active"]
         out["contact_mask"][t, :H] = m
         out["contact_hand_local"][t, :H] = r["h"]
@@ -452,13 +561,15 @@ def _collect(scene, grasp, hand, settings, run, rows, u_bar, timings, deferred: 
         out["objective"][t], out["iterations"][t] = r["obj"], r["it"]
         out["converged"][t], out["violation"][t], out["reproject_status"][t] = r["conv"], r["viol"], r["rstatus"]
     ps = settings.plan
+    first = per_hand[0]
     return ManipulationResult(
-        scene=scene, grasp=grasp, hand=hand, torque_rest=u_bar, contact_link=np.array(c.link[:K], dtype=np.int64),
+        scene=scene, grasp=first.grasp, hand=first.hand, q=first.q, root=first.root, torque=first.torque,
+        torque_rest=first.torque_rest, contact_link=np.array(c.link[:K], dtype=np.int64),
         env_mask=geo.env_mask[:T].copy(), env_point=geo.env_points[:T].copy(),
         num_added=int(sum(s >= 0 for s in c.source[:K])),
         settings=settings, friction=geo.mu,
         mass=float(ps.mass if ps.mass is not None else scene.object.mass), timings=timings, deferred=deferred,
-        **out)
+        hands=tuple(per_hand), **out)
 
 
 # ------------------------------------------------------------------------------------------------ result directory
@@ -469,7 +580,12 @@ def solution_arrays(result: ManipulationResult) -> dict:
     ``objective``, ``sqp_iterations``, ``mass``, ``variant_mass`` (only when ``PlanSettings.mass`` overrides the
     scene's mass), ``contact_slot`` (T, K): the contact's slot in order of creation,
     -1 where inactive (columns are sorted active-first per frame, so the slot identifies a contact across frames),
-    and ``contact_slot_link`` (K,): each slot's link index, never-active slots included)."""
+    and ``contact_slot_link`` (K,): each slot's link index, never-active slots included).
+
+    Two hands (docs/result_format.md): per side also ``q_<side>``, ``root_pose_<side>``, ``joint_names_<side>``,
+    ``guiding_<side>`` and the method's ``torque_<side>``, ``torque_rest_<side>``, ``torque_names_<side>``; ``q``,
+    ``root_pose``, ``joint_names``, ``torque``, ``torque_rest`` and ``torque_names`` repeat the right hand's, and
+    ``contact_link_name`` lists ``right/<link>`` and ``left/<link>`` in the hands' order."""
     from ..result import FORMAT_VERSION
 
     r = result
@@ -478,21 +594,35 @@ def solution_arrays(result: ManipulationResult) -> dict:
     take = lambda a: np.take_along_axis(a, order[..., None] if a.ndim == 3 else order, 1)  # noqa: E731
     mask = take(r.contact_mask)
     link = np.where(mask, r.contact_link[order], -1)
-    names = list(r.hand.joint_names)
+    hands = r.hands or (HandMotion(r.grasp.side, r.hand, r.grasp, r.q, r.root, r.torque, r.torque_rest),)
+    main = next((m for m in hands if m.side == "right"), hands[0])
+    names = list(main.hand.joint_names)
+    tnames = lambda jn: np.array(["root_torque_x", "root_torque_y", "root_torque_z", "root_force_x",  # noqa: E731
+                                  "root_force_y", "root_force_z"] + list(jn))
+    link_names = (list(main.hand.link_names) if len(hands) == 1
+                  else [f"{m.side}/{n}" for m in hands for n in m.hand.link_names])
+    per_side = {}
+    if len(hands) > 1:
+        for m in hands:
+            per_side.update({f"q_{m.side}": m.q, f"root_pose_{m.side}": m.root,
+                             f"joint_names_{m.side}": np.array(list(m.hand.joint_names)),
+                             f"guiding_{m.side}": np.zeros((T, m.hand.num_fingers), bool),
+                             f"torque_{m.side}": m.torque, f"torque_rest_{m.side}": m.torque_rest,
+                             f"torque_names_{m.side}": tnames(m.hand.joint_names)})
     return {
+        **per_side,
         "format_version": np.array(FORMAT_VERSION), "joint_names": np.array(names),
-        "q": r.q, "root_pose": r.root, "object_pose": r.scene.object_pose.double().numpy(),
+        "q": main.q, "root_pose": main.root, "object_pose": r.scene.object_pose.double().numpy(),
         "fps": np.array(float(r.scene.fps)),
-        "contact_mask": mask, "contact_link": link.astype(np.int64), "contact_link_name": np.array(r.hand.link_names),
+        "contact_mask": mask, "contact_link": link.astype(np.int64), "contact_link_name": np.array(link_names),
         "contact_point": take(r.contact_point), "contact_normal": take(r.contact_normal),
         "contact_force": take(r.contact_force), "contact_sliding": take(r.contact_sliding) & mask,
         "env_contact_mask": r.env_mask, "env_contact_point": r.env_point * r.env_mask[..., None],
         "env_contact_force": r.env_force,
         "strategy": np.array("liu2009"), "friction": np.array(r.friction), "reconstructed": np.array(True),
-        "guiding": np.zeros((T, r.hand.num_fingers), bool),
-        "torque": r.torque, "torque_rest": r.torque_rest, "torque_equilibrium": r.torque_rest,
-        "torque_names": np.array(["root_torque_x", "root_torque_y", "root_torque_z", "root_force_x", "root_force_y",
-                                  "root_force_z"] + names),
+        "guiding": np.zeros((T, main.hand.num_fingers), bool),
+        "torque": main.torque, "torque_rest": main.torque_rest, "torque_equilibrium": main.torque_rest,
+        "torque_names": tnames(names),
         "contact_added": take(r.contact_added) & mask, "contact_lambda": take(r.contact_lambda),
         "planned_force": take(r.planned_force), "contact_hand_local": take(r.contact_hand_local),
         "contact_object_local": take(r.contact_object_local), "objective": r.objective,
@@ -548,8 +678,13 @@ def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool 
     false`` and ``status: "grasp_unsuitable"`` (:func:`stats_dict`)."""
     writer = writer if writer is not None else prepare_output(out, overwrite=overwrite)
     scene = result.scene
-    track = dataclasses.replace(scene.hands[0], wrist_pose=torch.as_tensor(result.root))
-    scene = dataclasses.replace(scene, hands=(track,) + tuple(scene.hands[1:]))
-    writer.begin(result, scene, [result.hand])
+    motions = result.hands or (HandMotion(result.grasp.side, result.hand, result.grasp, result.q, result.root,
+                                          result.torque, result.torque_rest),)
+    # the written scene holds the manipulated hands, in the scene's order, with their synthesized wrists
+    by_side = {h.side: h for h in scene.hands}
+    tracks = [dataclasses.replace(by_side.get(m.side, scene.hands[0]), side=m.side,
+                                  wrist_pose=torch.as_tensor(m.root)) for m in motions]
+    scene = dataclasses.replace(scene, hands=tuple(tracks))
+    writer.begin(result, scene, [m.hand for m in motions])
     writer.write_solution(0, solution_arrays(result), scene.name)
     return writer.complete(stats_dict(result, unsuitable, **extra))

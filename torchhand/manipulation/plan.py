@@ -247,7 +247,7 @@ class _Geometry:
     """Everything fixed over a run: the object's motion and required wrench, the table contacts, the hand surface at
     the grasp pose (object frame) and the object mesh."""
 
-    def __init__(self, scene, grasp: Grasp, hand, settings: PlanSettings):
+    def __init__(self, scene, grasps, hands, settings: PlanSettings):
         from ..scene import environment_contacts
         from ..synthesis.problem import _thin_env, required_wrench
 
@@ -271,38 +271,60 @@ class _Geometry:
         self.env_slide = -env.sliding_velocity.double().numpy()             # table point relative to object point
         self.E = int(self.env_mask.shape[1])
         self.mesh = obj.mesh
-        self.hand = hand
-        self.samples = hand_surface_in_object(hand, grasp.q, grasp.wrist_in_object)          # (S, 3)
-        self.sample_link = hand.sample_link.cpu().numpy()
-        self.sample_local = hand.sample_points.detach().cpu().double().numpy()
-        qt = torch.as_tensor(grasp.q)[None]
-        self.link_pose = (torch.as_tensor(grasp.wrist_in_object) @ hand.forward_kinematics(qt)[0]).numpy()
-        self.q_now = np.asarray(grasp.q, dtype=np.float64)
-        self.wrist_now = np.asarray(grasp.wrist_in_object, dtype=np.float64)
-        self._moved = None
+        # one or two hands; links are numbered across them: hand j's link l is link_offset[j] + l
+        self.hands = list(hands)
+        self.hand = self.hands[0]
+        self.sides = [g.side for g in grasps]
+        self.link_offset = np.cumsum([0] + [h.num_links for h in self.hands])
+        self.sample_link = np.concatenate([h.sample_link.cpu().numpy() + o for h, o in zip(self.hands,
+                                                                                          self.link_offset)])
+        self.sample_local = np.concatenate([h.sample_points.detach().cpu().double().numpy() for h in self.hands])
+        self.sample_hand = np.concatenate([np.full(h.sample_link.numel(), j) for j, h in enumerate(self.hands)])
+        self.q_now = [np.asarray(g.q, dtype=np.float64) for g in grasps]
+        self.wrist_now = [np.asarray(g.wrist_in_object, dtype=np.float64) for g in grasps]
+        self.samples = np.zeros((len(self.sample_link), 3))
+        self.link_pose = np.zeros((int(self.link_offset[-1]), 4, 4))
+        for j in range(len(self.hands)):
+            self._pose_hand(j)
+        self._moved: dict = {}
         # Reachability of added contacts (set by the manipulation loop, which moves the hand; None: planning alone,
         # a rigid grasp, where any link may take a contact): the joint step per frame the synthesis allows, rad.
         self.reach_step: float | None = None
 
-    def move_hand(self, q: np.ndarray, wrist_in_object: np.ndarray) -> None:
-        """The hand's current pose (joint angles (D,), wrist in the object frame (4, 4)): new contacts (Sec. 4.3)
+    def move_hand(self, q: np.ndarray, wrist_in_object: np.ndarray, j: int = 0) -> None:
+        """Hand j's current pose (joint angles (D,), wrist in the object frame (4, 4)): new contacts (Sec. 4.3)
         are chosen from the hand surface there (computed when a contact is added)."""
-        self._moved = (np.asarray(q, dtype=np.float64), np.asarray(wrist_in_object, dtype=np.float64))
+        self._moved[j] = (np.asarray(q, dtype=np.float64), np.asarray(wrist_in_object, dtype=np.float64))
+
+    def _pose_hand(self, j: int) -> None:
+        hand, q, w = self.hands[j], self.q_now[j], self.wrist_now[j]
+        self.samples[self.sample_hand == j] = hand_surface_in_object(hand, q, w)
+        lo, hi = self.link_offset[j], self.link_offset[j + 1]
+        self.link_pose[lo:hi] = (torch.as_tensor(w) @ hand.forward_kinematics(torch.as_tensor(q)[None])[0]).numpy()
 
     def _refresh(self) -> None:
-        if self._moved is not None:
-            q, w = self._moved
-            self.samples = hand_surface_in_object(self.hand, q, w)
-            self.link_pose = (torch.as_tensor(w) @ self.hand.forward_kinematics(torch.as_tensor(q)[None])[0]).numpy()
-            self.q_now, self.wrist_now = q, w
-            self._moved = None
+        for j, (q, w) in self._moved.items():
+            self.q_now[j], self.wrist_now[j] = q, w
+            self._pose_hand(j)
+        self._moved = {}
+
+    def hand_of(self, link: int) -> int:
+        """The hand (index into ``hands``) of a numbered link."""
+        return int(np.searchsorted(self.link_offset, link, side="right") - 1)
+
+    def link_name(self, link: int) -> str:
+        """A numbered link's name; with two hands ``<side>/<link>`` (the result files' convention)."""
+        j = self.hand_of(link)
+        name = self.hands[j].link_names[link - self.link_offset[j]]
+        return name if len(self.hands) == 1 else f"{self.sides[j]}/{name}"
 
 
-def _initial_contacts(geo: _Geometry, grasp: Grasp) -> _Contacts:
+def _initial_contacts(geo: _Geometry, grasps) -> _Contacts:
     c = _Contacts([], [], [], [], [], [], [], [])
-    _, _, nrm = signed_distance(geo.mesh, grasp.contact_object)
-    for name, h, p, n_out in zip(grasp.contact_links, grasp.contact_hand, grasp.contact_object, nrm):
-        _add(c, geo, geo.hand.link_index(name), h, p, -n_out, 0, -1)
+    for j, grasp in enumerate(grasps):
+        _, _, nrm = signed_distance(geo.mesh, grasp.contact_object)
+        for name, h, p, n_out in zip(grasp.contact_links, grasp.contact_hand, grasp.contact_object, nrm):
+            _add(c, geo, geo.link_offset[j] + geo.hands[j].link_index(name), h, p, -n_out, 0, -1)
     return c
 
 
@@ -325,15 +347,15 @@ deferral, never a force before touching (:mod:`.manipulate`)."""
 
 
 def _candidate(c: _Contacts, geo: _Geometry, i: int, frames: int | None = None, k: int = 0):
-    """Sec. 4.3: the hand sample closest to contact i's hand point on a link holding no contact, and its closest
-    object point with that face's inward normal; None when every link holds a contact.
+    """Sec. 4.3: the hand sample closest to contact i's hand point on a link of the same hand holding no contact,
+    and its closest object point with that face's inward normal; None when every such link holds a contact.
 
     frames: the frames the hand has to close the new contact's gap (t_e - k, the synthesis of frames k+1 .. t_e;
     0 when the contact must carry force at the current frame). With the manipulation loop's reachability
     (``geo.reach_step`` set) the candidate must be reachable in them (:func:`_reach`); among the reachable links
     the one closest to h_i is taken (Liu: the closest point not on S_i)."""
     geo._refresh()
-    free = ~np.isin(geo.sample_link, np.array(c.link))
+    free = ~np.isin(geo.sample_link, np.array(c.link)) & (geo.sample_hand == geo.hand_of(c.link[i]))
     if not free.any():
         return None
     d = np.linalg.norm(geo.samples - c.h_obj[i], axis=1)
@@ -366,7 +388,8 @@ def _reach(c: _Contacts, geo: _Geometry, samples: np.ndarray, direction: np.ndar
     Linearised at the current pose, one small LP per sample (HiGHS): the largest ``g . J v`` over a per-frame joint
     step v with ``J_c v = 0`` (the active contacts' point Jacobians: they keep still, Eq. 7 without rolling) and
     ``|v_j|`` within the synthesis' per-frame bound ``geo.reach_step`` and the joint's room to its limits divided by
-    ``frames``; J is the sample's Jacobian (3, D, object frame), g the direction. The sample closes
+    ``frames``; J is the sample's Jacobian (3, D, object frame), g the direction. The samples are of one hand, and
+    only that hand's active contacts are held. The sample closes
     ``REACH_FACTOR`` times ``frames`` times that maximum. The wrist is held: it follows the object and the holding
     contacts, and counting on its turn let a linearised estimate "reach" across the object with whole fingers. A
     link moved only by the wrist (a metacarpal of the default hand) reaches nothing; a link whose finger holds
@@ -375,14 +398,15 @@ def _reach(c: _Contacts, geo: _Geometry, samples: np.ndarray, direction: np.ndar
     unsuitable, while this one adds ring_proximal in time.)"""
     from scipy.optimize import linprog
 
-    hand, q, w = geo.hand, geo.q_now, geo.wrist_now
-    D = hand.num_joints
     P = len(samples)
     out = np.zeros(P)
     if frames <= 0 or not P:
         return out
-    act = [j for j in range(len(c.link)) if c.start[j] <= k]
-    links = np.concatenate([geo.sample_link[samples], np.array([c.link[j] for j in act], dtype=np.int64)])
+    which = int(geo.sample_hand[samples[0]])             # the candidates are one hand's (_candidate)
+    hand, q, w, off = geo.hands[which], geo.q_now[which], geo.wrist_now[which], geo.link_offset[which]
+    D = hand.num_joints
+    act = [j for j in range(len(c.link)) if c.start[j] <= k and geo.hand_of(c.link[j]) == which]
+    links = np.concatenate([geo.sample_link[samples], np.array([c.link[j] for j in act], dtype=np.int64)]) - off
     local = np.concatenate([geo.sample_local[samples], np.array([c.h[j] for j in act]).reshape(-1, 3)])
     J = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(links), torch.as_tensor(local),
                             torch.as_tensor(w)[None], wrt_root=True)[0].numpy()[:, :, 6:]    # (P + A, 3, D)
@@ -571,7 +595,7 @@ def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.nda
         if geo.reach_step is not None and t_bad > k:
             return t_bad - k
         _, deficit = _wrench_fit(c, geo, t_bad, settings)
-        raise GraspUnsuitable(t_bad, deficit, tuple(geo.hand.link_names[l] for l in c.link), window=k)
+        raise GraspUnsuitable(t_bad, deficit, tuple(geo.link_name(l) for l in c.link), window=k)
     return n
 
 
@@ -704,7 +728,7 @@ class _Run:
 
     geo: _Geometry
     c: _Contacts
-    grasp: Grasp
+    grasp: Grasp | tuple          # one grasp, or one per hand (snapped)
     settings: PlanSettings
     records: list | None
     f_init_h: int
@@ -713,16 +737,27 @@ class _Run:
     per_frame: list = field(default_factory=list)
 
 
-def _start(scene, grasp: Grasp, settings: PlanSettings, hand=None) -> _Run:
-    """Snap the grasp if needed, build the geometry and contacts, and solve Stage 1 (F_{-1})."""
-    hand = (hand or grasp_hand(grasp)).to("cpu", torch.float64)
-    check_grasp_hand(grasp, hand)
-    if not grasp.has_contacts:
-        grasp, _ = snap_grasp(grasp, hand, scene.object.mesh, tol=settings.snap_tol)
-    geo = _Geometry(scene, grasp, hand, settings)
+def _start(scene, grasp, settings: PlanSettings, hand=None) -> _Run:
+    """Snap the grasp(s) if needed, build the geometry and contacts, and solve Stage 1 (F_{-1}). ``grasp``: one
+    :class:`Grasp` or a sequence of them (one per hand, different sides); ``hand``: its hand model, or a sequence
+    matching the grasps (None: :func:`grasp_hand`)."""
+    grasps = [grasp] if isinstance(grasp, Grasp) else list(grasp)
+    hands = list(hand) if isinstance(hand, (list, tuple)) else [hand] * len(grasps)
+    if not grasps or len(grasps) > 2 or len(hands) != len(grasps):
+        raise InputValueError(f"grasp: expected one grasp or one per hand (two at most), got {len(grasps)} grasp(s) "
+                              f"and {len(hands)} hand model(s)")
+    if len({g.side for g in grasps}) != len(grasps):
+        raise InputValueError(f"grasp: two grasps of the same side ({grasps[0].side}); one per hand")
+    for j, g in enumerate(grasps):
+        hands[j] = (hands[j] or grasp_hand(g)).to("cpu", torch.float64)
+        check_grasp_hand(g, hands[j])
+        if not g.has_contacts:
+            grasps[j], _ = snap_grasp(g, hands[j], scene.object.mesh, tol=settings.snap_tol)
+    geo = _Geometry(scene, grasps, hands, settings)
     if geo.T < 1:
         raise InputValueError("scene: the object motion has no frames")
-    c = _initial_contacts(geo, grasp)
+    grasp = grasps[0] if len(grasps) == 1 else tuple(grasps)
+    c = _initial_contacts(geo, grasps)
     records: list | None = [] if settings.keep_problems else None
     # Stage 1: F_{-1} = argmin sum |f|^2 s.t. Eq. 1 at frame 0 (f_prev = 0 makes Eq. 3 exactly that).
     lam, basis, status, _, _, _ = _solve(c, geo, 0, 1, np.zeros((len(c.link) + geo.E, 3)), settings, records)
@@ -746,7 +781,6 @@ def _step(run: _Run, k: int, f_prev: np.ndarray, z=None):
 
 def _assemble(run: _Run, t_start: float, t_stage1: float) -> ForcePlan:
     c, geo, E, out = run.c, run.geo, run.geo.E, run.out
-    hand = geo.hand
     f_init_h, f_init_vals, records, per_frame = run.f_init_h, run.f_init_vals, run.records, run.per_frame
     # Assemble (T, K) arrays: hand slots in order of creation, then table slots.
     H = len(c.link)
@@ -763,7 +797,7 @@ def _assemble(run: _Run, t_start: float, t_stage1: float) -> ForcePlan:
     added_at = np.array([s if src >= 0 else -1 for s, src in zip(c.start, c.source)] + [-1] * E, dtype=np.int64)
     added = mask & (added_at >= 0)[None]
     hand_flags = np.array([True] * H + [False] * E)
-    links = tuple(hand.link_names[l] for l in c.link) + ("table",) * E
+    links = tuple(geo.link_name(l) for l in c.link) + ("table",) * E
     t_end = time.perf_counter()
     return ForcePlan(
         forces=forces, lam=lams, points=points, normals=normals, mask=mask, hand=hand_flags, links=links,

@@ -4,7 +4,7 @@ atomically).
 * ``torque_deviation.png``: per frame, the torque deviation ``|u - u_bar|^2`` of Liu's objective (Eq. 8), split into
   the six wrist rows (torque about the root origin, N m, and force, N: the wrench the wrist carries), the finger
   joints (N m) and each finger's joints; with a second result (``compare``, e.g. the ``--no-objective`` ablation)
-  overlaid dashed. The legend gives each run's sums over the frames.
+  overlaid dashed. The legend gives each run's sums over the frames. Two hands: both hands' deviations add up.
 * ``forces.png``: per hand contact (slot in order of creation), the magnitude of the stored (re-projected) contact
   force |f| and of the planned force |F_k| (Sec. 4), newtons; added contacts (Sec. 4.3) are titled so and their
   first active frame is marked.
@@ -51,6 +51,8 @@ class ManipulationTrace:
     slot_link: link name of each slot, (K,) str ("" when an older result does not name a never-active slot)
     force, planned: stored and planned force of each slot, (T, K, 3), newtons (0 where inactive)
     mask, sliding, added: (T, K) bool, per slot
+    more_hands: with two hands, the second hand's (torque, torque_rest, joint_finger); ``torque`` above is the right
+        hand's, and the deviations add both hands
     """
 
     label: str
@@ -67,6 +69,7 @@ class ManipulationTrace:
     mask: np.ndarray
     sliding: np.ndarray
     added: np.ndarray
+    more_hands: tuple = ()
 
     @property
     def T(self) -> int:
@@ -124,6 +127,7 @@ def load_trace(path) -> ManipulationTrace:
         if missing:
             raise FileFormatError(f"{sol}: missing key(s) {', '.join(missing)} of a manipulation result")
         a = {k: z[k] for k in need}
+        extra = {k: z[k] for k in z.files if k.endswith(("_right", "_left")) and k.startswith(("torque", "joint_"))}
         slot = z["contact_slot"] if "contact_slot" in z.files else None
         slot_link = z["contact_slot_link"] if "contact_slot_link" in z.files else None
         fps = float(z["fps"]) if "fps" in z.files else float(result.scene.fps)
@@ -152,23 +156,39 @@ def load_trace(path) -> ManipulationTrace:
     by_name = {str(n): (fingers[link_finger[joint_link[j]]] if link_finger[joint_link[j]] >= 0 else "palm")
                for j, n in enumerate(hand.joint_names)}
     joint_finger = np.array([by_name.get(str(n), "palm") for n in a["joint_names"]])
-    finger_names = fingers + (("palm",) if "palm" in set(joint_finger) else ())
+    more = []
+    if "torque_left" in extra and "torque_right" in extra:   # two hands: torque/joint_names are the right hand's
+        for side in ("left",):
+            h2 = result.hand_models[side]
+            jl, lf = h2.chain.joint_link.cpu().numpy(), h2.link_finger.cpu().numpy()
+            f2 = tuple(str(f) for f in h2.finger_names)
+            names2 = {str(n): (f2[lf[jl[j]]] if lf[jl[j]] >= 0 else "palm") for j, n in enumerate(h2.joint_names)}
+            more.append((extra[f"torque_{side}"], extra[f"torque_rest_{side}"],
+                         np.array([names2.get(str(n), "palm") for n in extra[f"joint_names_{side}"]])))
+        joint_finger_all = np.concatenate([joint_finger] + [m[2] for m in more])
+    else:
+        joint_finger_all = joint_finger
+    finger_names = fingers + (("palm",) if "palm" in set(joint_finger_all) else ())
     objective = str(stats.get("settings", {}).get("synth", {}).get("objective", "torque"))
     what = "|u - u_bar|^2 objective" if objective == "torque" else "ablation: |q - q_prev|^2 objective"
     return ManipulationTrace(label=f"{root.name} ({what})", objective=objective, fps=fps,
                              complete=bool(stats.get("complete", True)), torque=a["torque"].astype(np.float64),
                              torque_rest=a["torque_rest"].astype(np.float64), joint_finger=joint_finger,
                              finger_names=finger_names, slot_link=link, force=force, planned=planned, mask=m,
-                             sliding=sl, added=ad)
+                             sliding=sl, added=ad, more_hands=tuple(more))
 
 
 def torque_deviation(trace: ManipulationTrace) -> dict:
     """Per-frame squared torque deviation |u - u_bar|^2, (T,) each: ``"wrist"`` (the six root rows; N m and N
     mixed, as in the objective), ``"joints"`` (all finger joints, (N m)^2) and one key per finger name."""
-    d2 = (trace.torque - trace.torque_rest[None]) ** 2
-    out = {"wrist": d2[:, :6].sum(1), "joints": d2[:, 6:].sum(1)}
-    for f in trace.finger_names:
-        out[f] = d2[:, 6:][:, trace.joint_finger == f].sum(1)
+    hands = ((trace.torque, trace.torque_rest, trace.joint_finger),) + tuple(trace.more_hands)
+    out = {"wrist": 0.0, "joints": 0.0, **{f: 0.0 for f in trace.finger_names}}
+    for torque, rest, joint_finger in hands:                 # two hands: both hands' deviations add up
+        d2 = (torque - rest[None]) ** 2
+        out["wrist"] = out["wrist"] + d2[:, :6].sum(1)
+        out["joints"] = out["joints"] + d2[:, 6:].sum(1)
+        for f in trace.finger_names:
+            out[f] = out[f] + d2[:, 6:][:, joint_finger == f].sum(1)
     return out
 
 

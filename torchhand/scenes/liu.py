@@ -36,6 +36,10 @@ a fitted posture (:func:`press_pose`, ``make_press`` in the script).
 shipped): a fitted posture (:func:`shadow_pose`) with three fingertips on the far face and the thumb on the near
 one. Its packaged grasp names the hand relative to the shared data directory (:data:`SHADOW_HAND`);
 :func:`load_packaged_grasp` resolves it.
+
+``liu-two-hand-lift`` has two hands: the big box of ``two-hand-box`` pressed between two flat hands
+(:func:`two_hand_pose`) and lifted; it ships one grasp per hand (``liu-two-hand-lift.npz``, the right hand, and
+``liu-two-hand-lift-left.npz``; :func:`grasp_paths`).
 """
 
 from __future__ import annotations
@@ -68,8 +72,8 @@ from .builtin import (
 
 __all__ = ["LIU_SCENES", "PRESS_DEPTH", "PRESS_EXTENTS", "PRESS_HEIGHT", "PRESS_PRELOAD", "PRESS_STIFFNESS",
            "PUSH_FORCE", "REST", "SHADOW_HAND", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
-           "approach_scene", "grasp_path", "load_packaged_grasp", "press_pose", "roll_pinch",
-           "shadow_hand_path", "shadow_pose", "shared_data_dir"]
+           "TWO_HAND_SNAP_TOL", "approach_scene", "grasp_path", "grasp_paths", "load_packaged_grasp", "press_pose", "roll_pinch",
+           "shadow_hand_path", "shadow_pose", "shared_data_dir", "two_hand_pose"]
 
 REST = 6
 """Frames at rest before each motion starts (and at least as many after it ends)."""
@@ -391,14 +395,7 @@ def shadow_pose(hand) -> tuple[np.ndarray, np.ndarray]:
     q = np.zeros(len(names))
     for name, deg in _SHADOW_POSTURE.items():
         q[names.index(name)] = math.radians(deg)
-    rotvec, pos = (np.asarray(v, dtype=np.float64) for v in _SHADOW_WRIST)
-    angle = float(np.linalg.norm(rotvec))
-    k = rotvec / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    T_object_hand = np.eye(4)
-    T_object_hand[:3, :3] = np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
-    T_object_hand[:3, 3] = pos
-    return q, T_object_hand
+    return q, _rotvec_pose(*_SHADOW_WRIST)
 
 
 _SHADOW_LIFT = ("Liu 2009 heavy lift with the Shadow hand: the 9 x 7 x 6 cm box (2.0 kg) of liu-lift, lifted 10 cm "
@@ -425,7 +422,75 @@ def liu_shadow_lift() -> Scene:
                                hands=(HandTrack(side="right", wrist_pose=wrist, model=model),))
 
 
-LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift")
+# --- two hands: a big box lifted between two flat hands ----------------------------------------------------------
+
+TWO_HAND_SNAP_TOL = 0.0015
+"""Snap tolerance of the liu-two-hand-lift grasps, metres: five contact links per hand (thumb metacarpal, index and
+middle middle and distal phalanges). With the default 5 mm every link of the flat hands (16 per hand) becomes a
+contact, more than the result format's 32 slots."""
+
+# The flat-hand posture of both hands (degrees; the default hand's other joints at 0, not at rest): fingers nearly straight along
+# the face, the thumb turned up out of it. A least-squares fit (scripts/make_liu_grasps.py, ``make_two_hand_lift``)
+# of the wrist and the finger joints, with the palm and the fingers' middle links on the side face and every other
+# link at least 3 mm off it; rounded to 0.1 degree.
+_TWO_HAND_POSTURE = {
+    "thumb_cmc_flex": -11.3, "thumb_cmc_abd": -19.2, "index_mcp_flex": 10.2, "index_dip": -2.0,
+    "middle_mcp_flex": 7.2, "middle_dip": -2.0, "ring_cmc_flex": 4.4, "ring_mcp_flex": -3.3,
+    "little_cmc_flex": 4.7, "little_mcp_flex": -4.0,
+}
+_TWO_HAND_WRIST = {                      # rotation vector, position (m), box frame
+    "right": ((1.2491, 1.2679, 1.1895), (0.1713, -0.0913, 0.0)),
+    "left": ((-1.2636, -1.2448, 1.1667), (-0.1713, -0.0913, 0.0)),
+}
+_BIG_BOX = (0.30, 0.20, 0.15)
+
+
+def _rotvec_pose(rotvec, pos) -> np.ndarray:
+    """(4, 4) from a rotation vector (radians) and a position."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    angle = float(np.linalg.norm(rotvec))
+    k = rotvec / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    T = np.eye(4)
+    T[:3, :3] = np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * K @ K
+    T[:3, 3] = pos
+    return T
+
+
+def two_hand_pose(side: str) -> tuple[np.ndarray, np.ndarray]:
+    """The liu-two-hand-lift grasp of one hand before snapping: the default ``side`` hand's joint angles and
+    ``T_object_hand`` (the palm flat on the box's +x face for the right hand, -x for the left, fingers along +y,
+    thumbs up)."""
+    from ..hand import default_hand
+
+    hand = default_hand(side)
+    names = list(hand.joint_names)
+    q = np.zeros(len(names))                               # not the rest pose: flat fingers
+    for name, deg in _TWO_HAND_POSTURE.items():
+        q[names.index(name)] = math.radians(deg)
+    return q, _rotvec_pose(*_TWO_HAND_WRIST[side])
+
+
+_TWO_HAND_LIFT = ("Liu 2009 with two hands: a 30 x 20 x 15 cm box (1.0 kg) pressed between two flat hands on its left "
+                  "and right faces is lifted 10 cm off the table in 1 s and held; both hands' contacts share one "
+                  "force plan.")
+
+
+@register_scene("liu-two-hand-lift", _TWO_HAND_LIFT)
+def liu_two_hand_lift() -> Scene:
+    """The box of the built-in two-hand-box scene, lifted as in liu-lift; the right and the left hand hold it
+    rigidly with the grasps of :func:`two_hand_pose`."""
+    T = 48
+    mesh, z0 = _resting_box(_BIG_BOX)
+    obj = RigidObject.from_trimesh(mesh, mass=1.0, name="big-box")
+    up = 0.10 * _ramp(T, REST, REST + 30)
+    pose = _upright(np.stack([0 * up, 0 * up, z0 + up], axis=-1))
+    return _scene("liu-two-hand-lift", _TWO_HAND_LIFT, obj, pose,
+                  [(side, pose @ two_hand_pose(side)[1]) for side in ("right", "left")])
+
+
+LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift",
+              "liu-two-hand-lift")
 """The Liu 2009 built-in scenes, each with a packaged grasp."""
 
 
@@ -434,18 +499,29 @@ LIU_SCENES = ("liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-
 
 
 def grasp_path(scene_name: str) -> Path | None:
-    """The packaged grasp file of a built-in scene (``torchhand/scenes/grasps/<name>.npz``), or None when the scene
-    has none (other names included)."""
-    if not isinstance(scene_name, str):
-        return None
-    path = _GRASPS / f"{scene_name}.npz"
-    return path if scene_name in LIU_SCENES and path.is_file() else None
+    """The packaged grasp file of a built-in scene (``torchhand/scenes/grasps/<name>.npz``; with two hands the first
+    hand's), or None when the scene has none (other names included)."""
+    paths = grasp_paths(scene_name)
+    return paths[0] if paths else None
+
+
+def grasp_paths(scene_name: str) -> list[Path]:
+    """Every packaged grasp file of a built-in scene, one per hand in the scene's hand order: ``<name>.npz`` (the
+    first hand) and ``<name>-<side>.npz`` for a second hand; empty when the scene has none."""
+    if not isinstance(scene_name, str) or scene_name not in LIU_SCENES:
+        return []
+    first = _GRASPS / f"{scene_name}.npz"
+    if not first.is_file():
+        return []
+    return [first] + sorted(p for p in _GRASPS.glob(f"{scene_name}-*.npz") if p.stem[len(scene_name) + 1:] in
+                            ("right", "left"))
 
 
 def load_packaged_grasp(scene_name: str, hand=None):
     """The packaged grasp of a built-in scene, ready to use: :func:`~torchhand.manipulation.load_grasp` of
     :func:`grasp_path`, with a hand named relative to the shared reference data (``liu-shadow-lift``'s
-    :data:`SHADOW_HAND`) resolved to its file. With ``hand``, also checked against it.
+    :data:`SHADOW_HAND`) resolved to its file. With ``hand`` (one-hand scenes), also checked against it. A
+    two-hand scene gives a tuple of grasps in its hand order (:func:`grasp_paths`).
 
     Raises:
         UnknownNameError: the scene has no packaged grasp; MissingFileError: its hand is not in the shared data;
@@ -453,15 +529,18 @@ def load_packaged_grasp(scene_name: str, hand=None):
     """
     from ..manipulation.grasp import check_grasp_hand, load_grasp
 
-    path = grasp_path(scene_name)
-    if path is None:
+    paths = grasp_paths(scene_name)
+    if not paths:
         raise UnknownNameError(f"scene: no packaged grasp for {scene_name!r}; packaged: {', '.join(LIU_SCENES)}")
-    grasp = load_grasp(path)
-    if grasp.hand == SHADOW_HAND:
-        grasp = dataclasses.replace(grasp, hand=str(shadow_hand_path()))
-    if hand is not None:
-        check_grasp_hand(grasp, hand, where=str(path))
-    return grasp
+    grasps = []
+    for path in paths:
+        grasp = load_grasp(path)
+        if grasp.hand == SHADOW_HAND:
+            grasp = dataclasses.replace(grasp, hand=str(shadow_hand_path()))
+        if hand is not None and len(paths) == 1:
+            check_grasp_hand(grasp, hand, where=str(path))
+        grasps.append(grasp)
+    return grasps[0] if len(grasps) == 1 else tuple(grasps)
 
 
 def approach_scene(scene: Scene, frames: int = _APPROACH + 4) -> Scene:
