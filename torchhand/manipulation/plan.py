@@ -272,7 +272,8 @@ class _Geometry:
         self.E = int(self.env_mask.shape[1])
         self.mesh = obj.mesh
         # one or two hands; links are numbered across them: hand j's link l is link_offset[j] + l
-        self.hands = list(hands)
+        grasps = [grasps] if isinstance(grasps, Grasp) else list(grasps)
+        self.hands = list(hands) if isinstance(hands, (list, tuple)) else [hands]
         self.hand = self.hands[0]
         self.sides = [g.side for g in grasps]
         self.link_offset = np.cumsum([0] + [h.num_links for h in self.hands])
@@ -321,7 +322,7 @@ class _Geometry:
 
 def _initial_contacts(geo: _Geometry, grasps) -> _Contacts:
     c = _Contacts([], [], [], [], [], [], [], [])
-    for j, grasp in enumerate(grasps):
+    for j, grasp in enumerate([grasps] if isinstance(grasps, Grasp) else grasps):
         _, _, nrm = signed_distance(geo.mesh, grasp.contact_object)
         for name, h, p, n_out in zip(grasp.contact_links, grasp.contact_hand, grasp.contact_object, nrm):
             _add(c, geo, geo.link_offset[j] + geo.hands[j].link_index(name), h, p, -n_out, 0, -1)
