@@ -311,6 +311,25 @@ def test_two_hand_lift_end_to_end(tmp_path, capsys):
     assert all(np.array_equal(z[k], z2[k]) for k in z.files)
 
 
+def test_two_hand_lift_too_heavy_keeps_its_frames(tmp_path):
+    """A 12 kg box is too heavy for the two flat hands: the motion stops as unsuitable, and the frames before it
+    (both hands, their last frame re-balanced for the cut scene) are a result that passes the checker."""
+    from torchhand.check import check_result
+    from torchhand.manipulation import ManipulationSettings, manipulate, write_manipulation
+    from torchhand.manipulation.manipulate import GraspUnsuitable
+    from torchhand.manipulation.plan import PlanSettings
+
+    with pytest.raises(GraspUnsuitable) as info:
+        manipulate(builtin_scene("liu-two-hand-lift"), load_packaged_grasp("liu-two-hand-lift"),
+                   ManipulationSettings(plan=PlanSettings(mass=12.0)))
+    err = info.value
+    assert err.partial is not None and 0 < err.partial.T <= err.frame and len(err.partial.hands) == 2
+    out = write_manipulation(err.partial, tmp_path / "partial", unsuitable=err)
+    print(f"12 kg between two hands: unsuitable at frame {err.frame}, {err.partial.T} frames written")
+    assert check_result(out).passed
+    assert not json.loads((out / "stats.json").read_text())["complete"]
+
+
 def test_two_hand_grasp_errors(tmp_path, capsys):
     """Two grasps of one side, or three grasps: one line, exit 2, nothing written."""
     right = str(grasp_paths("liu-two-hand-lift")[0])
