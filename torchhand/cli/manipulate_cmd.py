@@ -62,15 +62,12 @@ def _builtin_grasp(name: str) -> Path | None:
     return None if path is None else Path(path)
 
 
-def _files(grasp_file) -> str | list:
-    return [str(f) for f in grasp_file] if isinstance(grasp_file, list) else str(grasp_file)
+def _packaged_grasp(name: str) -> tuple:
+    """(the grasp shipped with the built-in scene ``name``, its hand resolved; a tuple for two hands), and its
+    files (``torchhand.scenes.liu``)."""
+    from ..scenes.liu import grasp_paths, load_packaged_grasp
 
-
-def _packaged_grasp(name: str):
-    """The grasp shipped with the built-in scene ``name``, its hand resolved (``torchhand.scenes.liu``)."""
-    from ..scenes.liu import load_packaged_grasp
-
-    return load_packaged_grasp(name)
+    return load_packaged_grasp(name), grasp_paths(name)
 
 
 def _grasp_paths(scene_arg: str, grasp: list | None) -> list[Path]:
@@ -106,7 +103,6 @@ def run(args) -> int:
         raise InputValueError(f"--max-force: expected a positive number of newtons, got {args.max_force:g}")
     threads = apply_threads(args.threads)
     grasp_files = _grasp_paths(args.scene, args.grasp)
-    grasp_file = grasp_files[0] if len(grasp_files) == 1 else grasp_files
     writer = prepare_output(args.out, overwrite=args.overwrite)      # before any work
     try:
         scene = load_scene(args.scene)
@@ -116,14 +112,11 @@ def run(args) -> int:
             raise InputValueError(f"--window: expected at most the {scene.T} frames of the motion, got {args.window}")
         packaged = not args.grasp and grasp_files == [_builtin_grasp(args.scene)]
         if packaged:
-            grasp = _packaged_grasp(args.scene)
-            if isinstance(grasp, tuple):                    # a two-hand built-in scene: its grasp files
-                from ..scenes.liu import grasp_paths
-
-                grasp_file = grasp_paths(args.scene)
+            grasp, grasp_files = _packaged_grasp(args.scene)
         else:
             grasps = [load_grasp(f) for f in grasp_files]
             grasp = grasps[0] if len(grasps) == 1 else grasps
+        grasp_file = str(grasp_files[0]) if len(grasp_files) == 1 else [str(f) for f in grasp_files]
         settings = ManipulationSettings(
             plan=PlanSettings(window=args.window, max_contact_force=args.max_force),
             synth=SynthSettings(objective="pose" if args.no_objective else "torque"))
@@ -140,7 +133,7 @@ def run(args) -> int:
         if err.partial is None:
             writer.abandon()
         else:
-            out = write_manipulation(err.partial, writer=writer, unsuitable=err, grasp_file=_files(grasp_file),
+            out = write_manipulation(err.partial, writer=writer, unsuitable=err, grasp_file=grasp_file,
                                      threads=threads)
             where = f"frames 0-{err.partial.T - 1} written to {out} (stats.json: complete false)"
         print(f"torchhand: grasp unsuitable for this motion at frame {err.frame}: {_deficit(err)}; {where}",
@@ -151,7 +144,7 @@ def run(args) -> int:
         writer.abandon()
         raise
     bar.close()
-    out = write_manipulation(result, writer=writer, grasp_file=_files(grasp_file), threads=threads)
+    out = write_manipulation(result, writer=writer, grasp_file=grasp_file, threads=threads)
     t = result.timings["total_s"]
     print(f"{scene.name}: {result.T} frames in {t:.1f} s ({result.T / t:.1f} frames/s), {result.num_added} contact(s) "
           f"added; wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {out}/solutions/sol_000.npz")

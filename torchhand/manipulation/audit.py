@@ -23,17 +23,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..check.mjcf_geometry import _quat_wxyz
+
 __all__ = ["ContactMotion", "contact_motion", "mujoco_torque_error"]
 
 SLIDE_SPEED = 1e-3
 """Tangential speed above which a contact counts as moving (m/s): the static-slip bound."""
-
-
-def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
-    return np.array([w, x, y, z])
 
 
 def _sides(d: Path, z: dict) -> list[tuple]:

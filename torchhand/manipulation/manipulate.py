@@ -279,6 +279,7 @@ def _manipulate(scene, grasp, settings: ManipulationSettings | None, *, hand, pr
     t_stage1 = time.perf_counter()
     prev = _Hands(frames, np.stack(c.h), np.stack(c.p))
     pose_prev = pose[0]
+    ts_prev = [tree_state(ctx.order, q, root) for ctx, (q, root) in zip(ctxs, prev.frames)]   # kinematics of prev
     added_k: dict = {}
     f_prev, z = run.f_init_vals, None
     rows, per_frame, t_plan, t_synth = [], [], 0.0, 0.0
@@ -350,8 +351,7 @@ def _manipulate(scene, grasp, settings: ManipulationSettings | None, *, hand, pr
                                     ctxs[j].gravity))
         # contact states for frame k+1 (Eq. 7's relative velocity of the material points)
         xm = _hand_points(geo, ts, links, prev.h)
-        x_prev = _hand_points(geo, [tree_state(ctxs[j].order, q, root) for j, (q, root) in enumerate(prev.frames)],
-                              links, prev.h)
+        x_prev = _hand_points(geo, ts_prev, links, prev.h)
         d_now = xm - (prev.p @ Rs.T + os_)
         d_before = x_prev - (prev.p @ pose_prev[:3, :3].T + pose_prev[:3, 3])
         v = (d_now - d_before) * scene.fps
@@ -369,6 +369,7 @@ def _manipulate(scene, grasp, settings: ManipulationSettings | None, *, hand, pr
         for j, (q, root) in enumerate(res.frames):
             geo.move_hand(q, np.linalg.inv(pose[k]) @ root, j)
         prev = _Hands(res.frames, h, p_new)
+        ts_prev = ts
         pose_prev = pose[k]
         f_prev = f_fin
         t2 = time.perf_counter()

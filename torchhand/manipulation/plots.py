@@ -150,24 +150,13 @@ def load_trace(path) -> ManipulationTrace:
         force, planned, m, sl, ad = (np.concatenate([x, np.zeros((T, K - x.shape[1]) + x.shape[2:], x.dtype)], 1)
                                      for x in (force, planned, m, sl, ad))
         link = np.array([names[int(i)] for i in slot_link], dtype=object)
-    joint_link = hand.chain.joint_link.cpu().numpy()
-    link_finger = hand.link_finger.cpu().numpy()
     fingers = tuple(str(f) for f in hand.finger_names)
-    by_name = {str(n): (fingers[link_finger[joint_link[j]]] if link_finger[joint_link[j]] >= 0 else "palm")
-               for j, n in enumerate(hand.joint_names)}
-    joint_finger = np.array([by_name.get(str(n), "palm") for n in a["joint_names"]])
+    joint_finger = _joint_fingers(hand, a["joint_names"])
     more = []
     if "torque_left" in extra and "torque_right" in extra:   # two hands: torque/joint_names are the right hand's
-        for side in ("left",):
-            h2 = result.hand_models[side]
-            jl, lf = h2.chain.joint_link.cpu().numpy(), h2.link_finger.cpu().numpy()
-            f2 = tuple(str(f) for f in h2.finger_names)
-            names2 = {str(n): (f2[lf[jl[j]]] if lf[jl[j]] >= 0 else "palm") for j, n in enumerate(h2.joint_names)}
-            more.append((extra[f"torque_{side}"], extra[f"torque_rest_{side}"],
-                         np.array([names2.get(str(n), "palm") for n in extra[f"joint_names_{side}"]])))
-        joint_finger_all = np.concatenate([joint_finger] + [m[2] for m in more])
-    else:
-        joint_finger_all = joint_finger
+        left = _joint_fingers(result.hand_models["left"], extra["joint_names_left"])
+        more.append((extra["torque_left"], extra["torque_rest_left"], left))
+    joint_finger_all = np.concatenate([joint_finger] + [m[2] for m in more])
     finger_names = fingers + (("palm",) if "palm" in set(joint_finger_all) else ())
     objective = str(stats.get("settings", {}).get("synth", {}).get("objective", "torque"))
     what = "|u - u_bar|^2 objective" if objective == "torque" else "ablation: |q - q_prev|^2 objective"
@@ -176,6 +165,16 @@ def load_trace(path) -> ManipulationTrace:
                              torque_rest=a["torque_rest"].astype(np.float64), joint_finger=joint_finger,
                              finger_names=finger_names, slot_link=link, force=force, planned=planned, mask=m,
                              sliding=sl, added=ad, more_hands=tuple(more))
+
+
+def _joint_fingers(hand, joint_names) -> np.ndarray:
+    """The finger name (or "palm") of each joint in ``joint_names``, (D,) str."""
+    joint_link = hand.chain.joint_link.cpu().numpy()
+    link_finger = hand.link_finger.cpu().numpy()
+    fingers = tuple(str(f) for f in hand.finger_names)
+    by_name = {str(n): (fingers[link_finger[joint_link[j]]] if link_finger[joint_link[j]] >= 0 else "palm")
+               for j, n in enumerate(hand.joint_names)}
+    return np.array([by_name.get(str(n), "palm") for n in joint_names])
 
 
 def torque_deviation(trace: ManipulationTrace) -> dict:

@@ -94,14 +94,14 @@ def _upright(centre: np.ndarray) -> np.ndarray:
     return _poses(np.broadcast_to(np.eye(3), (len(centre), 3, 3)), centre)
 
 
-def _posture(hand, degrees: dict) -> tuple:
-    """(hand, q (D,) radians): the default right hand (built when ``hand`` is None) at its rest angles with the
-    joints named in ``degrees`` set."""
+def _posture(hand, degrees: dict, *, rest: bool = True) -> tuple:
+    """(hand, q (D,) radians): ``hand`` (the default right hand when None) at its rest angles (``rest=False``: at
+    0) with the joints named in ``degrees`` set."""
     from ..hand import default_hand
 
     hand = default_hand() if hand is None else hand
     names = list(hand.joint_names)
-    q = hand.q_rest.detach().cpu().double().numpy().copy()
+    q = hand.q_rest.detach().cpu().double().numpy().copy() if rest else np.zeros(len(names))
     for name, deg in degrees.items():
         q[names.index(name)] = math.radians(deg)
     return hand, q
@@ -313,7 +313,8 @@ def press_pose(hand=None) -> tuple[np.ndarray, np.ndarray]:
     """The liu-press grasp before snapping: the default right hand's joint angles (``_PRESS_POSTURE``, the other
     joints at rest) and ``T_object_hand`` (the palm facing down over the plate, fingers along +x, the wrist at
     ``_PRESS_WRIST``). The three fingertips are within 3 mm of the top face (snapping closes the gaps), about
-    (-20, 8), (11, 16) and (20, -10) mm from its centre, so the plate's centre, where the spring pushes, lies inside their triangle."""
+    (-20, 8), (11, 16) and (20, -10) mm from its centre, so the plate's centre, where the spring pushes, lies inside
+    their triangle."""
     _, q = _posture(hand, _PRESS_POSTURE)
     T_object_hand = np.eye(4)
     T_object_hand[:3, 3] = _PRESS_WRIST
@@ -391,10 +392,7 @@ def shadow_hand_path() -> Path:
 def shadow_pose(hand) -> tuple[np.ndarray, np.ndarray]:
     """The liu-shadow-lift grasp before snapping: the Shadow hand's joint angles (``_SHADOW_POSTURE``) and
     ``T_object_hand`` (the box frame of the lift at frame 0)."""
-    names = list(hand.joint_names)
-    q = np.zeros(len(names))
-    for name, deg in _SHADOW_POSTURE.items():
-        q[names.index(name)] = math.radians(deg)
+    _, q = _posture(hand, _SHADOW_POSTURE, rest=False)
     return q, _rotvec_pose(*_SHADOW_WRIST)
 
 
@@ -463,11 +461,7 @@ def two_hand_pose(side: str) -> tuple[np.ndarray, np.ndarray]:
     thumbs up)."""
     from ..hand import default_hand
 
-    hand = default_hand(side)
-    names = list(hand.joint_names)
-    q = np.zeros(len(names))                               # not the rest pose: flat fingers
-    for name, deg in _TWO_HAND_POSTURE.items():
-        q[names.index(name)] = math.radians(deg)
+    _, q = _posture(default_hand(side), _TWO_HAND_POSTURE, rest=False)     # not the rest pose: flat fingers
     return q, _rotvec_pose(*_TWO_HAND_WRIST[side])
 
 
