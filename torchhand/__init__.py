@@ -32,6 +32,8 @@ _LAZY = {
     "SynthesisResult": ".synthesis.pipeline",
     "check_result": ".check",
     "CheckReport": ".check",
+    "reproducible": "._numerics",       # the portable numeric profile (docs/synthesis.md)
+    "NumericsProfile": "._numerics",
 }
 
 

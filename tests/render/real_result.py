@@ -1,8 +1,9 @@
 """A real result directory for tests: ``torchhand synthesize box-turn`` run once per test session.
 
 The command is :data:`SYNTHESIZE`: frames 14-37 of box-turn, where the hand starts turning the box on the table
-(the hand's contacts carry force), three solutions within 6000 node tests. The search budget is a node count, so the solutions are the same on any machine for
-a given thread count (1 here unless ``TORCHHAND_THREADS`` says otherwise). :func:`real_box_turn` runs it in a subprocess the first time it is called and returns the
+(the hand's contacts carry force), three solutions within 6000 node tests. The search budget is a node count and the command pins the portable numeric
+profile, so the solutions are the same on any x86-64 machine with AVX2 for a given thread count (1 here unless
+``TORCHHAND_THREADS`` says otherwise). :func:`real_box_turn` runs it in a subprocess the first time it is called and returns the
 same directory afterwards (tests/render, tests/torchhand/test_result.py and test_check.py share it).
 """
 

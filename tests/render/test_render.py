@@ -2,7 +2,9 @@
 
 The clip is the first 10 frames of solution 0 of a real ``torchhand synthesize box-turn`` output (the command is
 ``real_result.SYNTHESIZE``). The reference image ``tests/data/render_ref_box_turn.png`` is its frame 5 (320x240,
-downsampled 2x). After an intended change of the drawing, or of the synthesis (which changes the motion drawn),
+downsampled 2x). The command runs in its own process, where ``torchhand`` pins the portable numeric profile
+(docs/synthesis.md), so the motion drawn is the same on any x86-64 CPU with AVX2 whatever this process' settings;
+what is left to differ is the rasteriser's edges and shading (the bounds below). After an intended change of the drawing, or of the synthesis (which changes the motion drawn),
 regenerate it with
 
     TORCHHAND_REGEN_RENDER_REF=1 python -m pytest -q tests/render/test_render.py -k reference

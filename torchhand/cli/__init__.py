@@ -12,11 +12,12 @@ import importlib
 import os
 import sys
 
+from .._numerics import MODES, pin_for_command
 from ..errors import TorchhandError
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
 _COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot", "splice", "export", "batch",
-             "capture", "grasp", "manipulate")
+             "capture", "grasp", "manipulate", "numerics")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,6 +26,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Physically plausible hand-motion synthesis on a batched PyTorch core.",
     )
     parser.add_argument("--version", action="version", version=_version())
+    parser.add_argument("--numerics", choices=MODES, default=None,
+                        help="numeric code paths: portable (default, or $TORCHHAND_NUMERICS: the same results on any "
+                             "x86-64 CPU with AVX2) or native (the machine's fastest; results may differ between "
+                             "CPUs). See `torchhand numerics`")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in _COMMANDS:
@@ -42,6 +47,12 @@ def main(argv: list[str] | None = None) -> int:
     # Idle OpenMP threads sleep instead of spinning, so that a busy machine does not starve torch's thread pool
     # (read once, when torch loads: the subcommands import it below). See torchhand/cli/_common.py.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    try:
+        # Numeric code paths first: torch and NumPy read them when they load (torchhand/_numerics.py).
+        pin_for_command(sys.argv[1:] if argv is None else argv)
+    except TorchhandError as err:
+        print(f"torchhand: error: {err}", file=sys.stderr)
+        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._numerics import record as numerics_record
 from .._npz import read_npz
 from ..errors import FileFormatError, InputValueError, UnknownNameError
 from ..kernels.status import SolverStatus
@@ -595,7 +596,7 @@ def _stats(result: ResynthResult, written: list) -> dict:
                          "margin": s.margin, "settle_steps": s.settle_steps, "grip": dataclasses.asdict(s.grip),
                          "object_contacts": s.object_contacts, "self_contacts": s.self_contacts,
                          "sdf_voxel": s.sdf_voxel if s.object_contacts == "sdf" else None},
-            "threads": torch.get_num_threads()}
+            "threads": torch.get_num_threads(), "numerics": numerics_record()}
 
 
 def prepare_result_dir(out, *, overwrite: bool = False):

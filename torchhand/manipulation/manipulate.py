@@ -42,6 +42,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
+from .._numerics import record as numerics_record
 from ..errors import InputValueError
 from ..kernels.convex_qp import solve_convex_qp
 from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
@@ -658,7 +659,8 @@ def stats_dict(result: ManipulationResult, unsuitable: GraspUnsuitable | None = 
             "max_joint_speed": s.synth.joint_speed, "sqp_iterations": r.iterations.tolist(),
             "sqp_converged": r.converged.tolist(), "reproject_status": r.reproject_status.tolist(),
             "settings": {"plan": dataclasses.asdict(s.plan), "synth": dataclasses.asdict(s.synth)},
-            "mass": r.mass, "friction": r.friction, "threads": torch.get_num_threads(), **extra}
+            "mass": r.mass, "friction": r.friction, "threads": torch.get_num_threads(),
+            "numerics": numerics_record(), **extra}
 
 
 def prepare_output(out, *, overwrite: bool = False):

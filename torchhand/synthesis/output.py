@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._numerics import record as numerics_record
 from .._atomic import atomic_bytes, atomic_json
 from ..errors import InputValueError, TorchhandError
 from ..hand.mjcf import hand_to_mjcf
@@ -125,6 +126,7 @@ def stats_dict(result: SynthesisResult, *, threads: int | None = None) -> dict:
         "max_joint_speed": result.max_joint_speed, "keep_unsmoothed": result.keep_unsmoothed,
         "restarts": st.restarts, "deepest_frame": st.deepest_frame, "strategy": result.settings.strategy,
         "seed": result.seed, "threads": threads if threads is not None else torch.get_num_threads(),
+        "numerics": numerics_record(),
         "timings_s": result.timings, "trees": result.settings.trees, "candidates": result.settings.candidates,
         "slide_speed": result.node_settings.slide_speed,
         "rejections_by_frame": [list(r) for r in st.rejections_by_frame],

@@ -1,0 +1,103 @@
+"""The portable numeric profile (torchhand/_numerics.py): the command line pins it before torch and NumPy load,
+whatever the environment says, so the README's main command writes the same solution arrays on any x86-64 CPU with
+AVX2: their digest is the one recorded in docs/synthesis.md. CI runs this file a second time under other CPU
+settings (scripts/test_other_cpu.sh), where the digest must not change."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from torchhand._digest import solutions_digest
+from torchhand._numerics import PORTABLE_ENV, cpu_has_avx2
+
+ROOT = Path(__file__).resolve().parents[2]
+needs_avx2 = pytest.mark.skipif(not cpu_has_avx2(), reason="the portable profile is defined for x86-64 with AVX2")
+# Settings that change every library's code path on any AVX2 machine (torch without vector kernels, OpenBLAS's
+# Sandy Bridge kernels, MKL's compatible branch): what the pin must override.
+FOREIGN = {"ATEN_CPU_CAPABILITY": "default", "OPENBLAS_CORETYPE": "Sandybridge", "MKL_CBWR": "AUTO",
+           "NPY_DISABLE_CPU_FEATURES": ""}
+
+
+def _torchhand(args: list[str], env: dict | None = None, timeout: float = 3600) -> subprocess.CompletedProcess:
+    full = {**os.environ, **(env or {})}
+    return subprocess.run([sys.executable, "-m", "torchhand.cli", *args], capture_output=True, text=True, env=full,
+                          cwd=ROOT, timeout=timeout)
+
+
+def recorded_digest() -> str:
+    """The digest of the README's main command, as docs/synthesis.md records it."""
+    text = (ROOT / "docs" / "synthesis.md").read_text()
+    m = re.search(r"digest of the README's main command.*?`([0-9a-f]{64})`", text, re.S)
+    assert m, "docs/synthesis.md records no digest of the README's main command"
+    return m.group(1)
+
+
+@needs_avx2
+def test_the_command_line_pins_the_portable_profile_over_the_environment():
+    run = _torchhand(["numerics", "--json"], env=FOREIGN)
+    assert run.returncode == 0, run.stderr
+    prof = json.loads(run.stdout)
+    assert prof["mode"] == "portable" and prof["torch_capability"] == "AVX2", prof
+    assert prof["mkl_cbwr"] == PORTABLE_ENV["MKL_CBWR"] and prof["openblas"] == ["Haswell"], prof
+    assert prof["numpy_avx512"] is False
+
+
+@needs_avx2
+def test_native_keeps_the_environment():
+    run = _torchhand(["--numerics", "native", "numerics", "--json"], env=FOREIGN)
+    assert run.returncode == 0, run.stderr
+    prof = json.loads(run.stdout)
+    assert prof["mode"] == "native" and prof["torch_capability"] == "DEFAULT" and prof["mkl_cbwr"] == "AUTO", prof
+    assert prof["openblas"] == ["Sandybridge"], prof
+    same = _torchhand(["numerics", "--json"], env={**FOREIGN, "TORCHHAND_NUMERICS": "native"})
+    assert json.loads(same.stdout)["mode"] == "native"
+
+
+def test_a_bad_mode_is_one_line_and_exit_2():
+    for args, env in ((["--numerics", "fast", "numerics"], {}), (["numerics"], {"TORCHHAND_NUMERICS": "fast"})):
+        run = _torchhand(args, env=env)
+        assert run.returncode == 2 and run.stdout == ""
+        assert run.stderr.strip() == ("torchhand: error: --numerics / $TORCHHAND_NUMERICS: expected one of "
+                                      "portable, native, got 'fast'")
+
+
+def test_env_lines_are_the_profile():
+    run = _torchhand(["numerics", "--env"])
+    assert run.returncode == 0
+    if cpu_has_avx2():
+        got = dict(re.fullmatch(r"export (\w+)=(.*)", line).groups() for line in run.stdout.splitlines())
+        assert {k: v.strip("'") for k, v in got.items()} == PORTABLE_ENV
+
+
+@needs_avx2
+def test_reproducible_before_and_after_numpy():
+    code = ("import torchhand; p = torchhand.reproducible(); import torch, numpy; "
+            "from torchhand._numerics import describe; print(describe().mode, p.mode)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, **FOREIGN})
+    assert run.returncode == 0 and run.stdout.split() == ["portable", "portable"], run.stderr
+    late = "import numpy, torchhand; torchhand.reproducible()"
+    run = subprocess.run([sys.executable, "-c", late], capture_output=True, text=True,
+                         env={k: v for k, v in os.environ.items() if k not in PORTABLE_ENV})
+    assert run.returncode == 1 and "numpy already loaded without" in run.stderr
+
+
+@needs_avx2
+def test_readme_main_command_writes_the_recorded_solutions(tmp_path):
+    """`torchhand synthesize box-turn --out DIR` exactly as the README gives it (ten solutions within 60000 node
+    tests, seed 0, one thread): the digest of its solution arrays is docs/synthesis.md's, whatever this process'
+    CPU settings are (CI runs it under two)."""
+    out = tmp_path / "box-turn"
+    run = _torchhand(["synthesize", "box-turn", "--out", str(out), "--no-progress"])
+    assert run.returncode == 0, run.stderr[-2000:]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["numerics"]["mode"] == "portable" and stats["threads"] == 1
+    assert len(list((out / "solutions").glob("sol_*.npz"))) == 10
+    assert solutions_digest(out) == recorded_digest(), (stats["nodes_tested"], solutions_digest(out))
