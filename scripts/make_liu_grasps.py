@@ -21,8 +21,15 @@ posture with the cylinder placed between the thumb's and the index's distal caps
 plate's top face (:func:`torchhand.scenes.liu.press_pose`), snapped with the default 5 mm tolerance.
 
     python scripts/make_liu_grasps.py [--only liu-drag ...] [--work DIR] [--check]
+    python scripts/make_liu_grasps.py --test-grasp
 
 ``--check`` also runs ``torchhand manipulate`` and ``torchhand check`` on every scene with its new grasp.
+
+``--test-grasp`` writes the manipulation tests' grasp instead, ``tests/data/box_turn_grasp.npz``
+(:func:`make_test_grasp`): the same kind of search on box-turn's own first 8 frames, solution 0 at frame
+``TEST_GRASP_FRAME`` (thumb, index and little finger on the box's sides), snapped. The tests load the file and never
+search: the search's answer moves with the last bits of the arithmetic (on different CPUs its grasps differed by
+about 2e-8 m, and the planner's verdicts near a mass threshold with them).
 """
 
 from __future__ import annotations
@@ -198,6 +205,26 @@ def make_two_hand_lift(work: Path | None = None) -> Path:
     return out
 
 
+TEST_GRASP = Path(__file__).resolve().parents[1] / "tests" / "data" / "box_turn_grasp.npz"
+TEST_GRASP_FRAME = 6
+
+
+def make_test_grasp(work: Path) -> Path:
+    """The manipulation tests' grasp (module docstring): ``torchhand synthesize box-turn`` on frames 0-7 with the
+    small search above, ``grasp_from_result`` of solution 0 at ``TEST_GRASP_FRAME``, snapped with the default 5 mm
+    (``make_grasp``), written to ``TEST_GRASP``."""
+    from torchhand.manipulation import grasp_from_result, make_grasp
+
+    res = work / "box-turn-synth"
+    if cli(["synthesize", "box-turn", "--out", str(res), "--overwrite"] + SYNTH) != 0:
+        raise SystemExit("box-turn: synthesis failed")
+    grasp, scene = grasp_from_result(res, solution=0, frame=TEST_GRASP_FRAME)
+    snapped, report = make_grasp(grasp, scene)
+    for line in report.lines():
+        print(f"test grasp snap: {line}")
+    return save_grasp(snapped, TEST_GRASP, overwrite=True)
+
+
 def make(name: str, work: Path) -> Path:
     if name == "liu-two-hand-lift":
         return make_two_hand_lift(work)
@@ -234,11 +261,15 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="+", choices=LIU_SCENES, help="these scenes only")
     ap.add_argument("--work", help="keep the intermediate scenes and results here (default: a temporary folder)")
     ap.add_argument("--check", action="store_true", help="also run manipulate and check on each scene")
+    ap.add_argument("--test-grasp", action="store_true", help="write the tests' grasp (tests/data) instead")
     args = ap.parse_args(argv)
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="liu-grasps-"))
     work.mkdir(parents=True, exist_ok=True)
     bad = []
     try:
+        if args.test_grasp:
+            print(f"box-turn: wrote {make_test_grasp(work)}")
+            return 0
         for name in args.only or LIU_SCENES:
             g = make(name, work)
             print(f"{name}: wrote {g}")

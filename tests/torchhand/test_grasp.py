@@ -15,16 +15,22 @@ from torchhand.manipulation import (Grasp, grasp_from_qpos, grasp_from_result, g
                                     save_grasp, snap_grasp)
 from torchhand.manipulation.snap import hand_surface_in_object, signed_distance
 
-# box-turn's first 8 frames with a small search: a real result in a few seconds (as test_synthesis_output.py)
+# box-turn's first 8 frames with a small search: a real result in a few seconds (as test_synthesis_output.py), for
+# the tests of `grasp from-result` and `from-qpos` themselves
 SYNTH = ["synthesize", "box-turn", "--frames", "0:8", "--trees", "4", "--candidates", "8", "--max-nodes", "2000",
          "--solutions", "1", "--seed", "0", "--no-progress", "--threads", "1"]
 FRAME = 6          # thumb, index and little finger on the box's sides
+
+TEST_GRASP = Path(__file__).resolve().parents[1] / "data" / "box_turn_grasp.npz"
+"""The manipulation tests' grasp: such a search's solution 0 at FRAME, snapped (six contact links), stored once by
+``python scripts/make_liu_grasps.py --test-grasp``. A fixed input: the search itself moves with the last bits of the
+arithmetic (its grasps differed by about 2e-8 m between CPUs), and so did the planner's verdicts built on it."""
 
 _CACHE: dict = {}
 
 
 def small_result(tmp_path_factory) -> Path:
-    """A `torchhand synthesize box-turn` result (run once per session; test_plan.py shares it)."""
+    """A `torchhand synthesize box-turn` result (run once per session; test_inferred.py shares it)."""
     if "dir" not in _CACHE:
         out = tmp_path_factory.mktemp("manip") / "bt"
         assert cli(SYNTH + ["--out", str(out)]) == 0
@@ -32,18 +38,18 @@ def small_result(tmp_path_factory) -> Path:
     return _CACHE["dir"]
 
 
-def snapped_grasp(tmp_path_factory):
-    """(snapped grasp at FRAME, the result's scene)."""
+def box_turn_grasp():
+    """(the stored snapped grasp TEST_GRASP at FRAME, the built-in box-turn scene it belongs to)."""
+    from torchhand.scene import load_scene
+
     if "grasp" not in _CACHE:
-        g, scene = grasp_from_result(small_result(tmp_path_factory), solution=0, frame=FRAME)
-        s, _ = make_grasp(g, scene)
-        _CACHE["grasp"] = (s, scene)
+        _CACHE["grasp"] = (load_grasp(TEST_GRASP), load_scene("box-turn"))
     return _CACHE["grasp"]
 
 
 @pytest.fixture(scope="module")
-def grasp_scene(tmp_path_factory):
-    return snapped_grasp(tmp_path_factory)
+def grasp_scene():
+    return box_turn_grasp()
 
 
 def _raw(path: Path) -> dict:

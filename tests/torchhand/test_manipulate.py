@@ -21,7 +21,7 @@ from torchhand.manipulation.audit import mujoco_torque_error
 from torchhand.manipulation.synth import dense_qp
 from torchhand.scene import load_scene
 
-from .test_grasp import snapped_grasp
+from .test_grasp import box_turn_grasp
 
 START, T = 14, 12            # box-turn's frames 14..25: the box starts turning on the table (friction to overcome)
 
@@ -36,7 +36,7 @@ def turn_scene(base):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    grasp, base = snapped_grasp(tmp_path_factory)
+    grasp, base = box_turn_grasp()
     scene = turn_scene(base)
     out = {}
     for name, objective in (("default", "torque"), ("ablation", "pose")):
@@ -173,7 +173,7 @@ def test_dense_qp_against_clarabel():
 # ------------------------------------------------------------------------------------------------ command line
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
-    grasp, base = snapped_grasp(tmp_path_factory)
+    grasp, base = box_turn_grasp()
     d = tmp_path_factory.mktemp("manip_cli") / "turn"
     turn_scene(base).export(d)
     save_grasp(grasp, d / "grasp.npz")

@@ -16,7 +16,7 @@ from torchhand.manipulation import ManipulationSettings, manipulate, write_manip
 from torchhand.manipulation import plan as _plan
 from torchhand.manipulation.plan import GraspUnsuitable, PlanSettings
 
-from .test_grasp import snapped_grasp
+from .test_grasp import box_turn_grasp
 from .test_manipulate import _mujoco_model, _quat
 from .test_plan import lift_scene
 
@@ -36,7 +36,7 @@ def heavy_lift(grasp, base):
 
 @pytest.fixture(scope="module")
 def heavy(tmp_path_factory):
-    grasp, base = snapped_grasp(tmp_path_factory)
+    grasp, base = box_turn_grasp()
     scene = heavy_lift(grasp, base)
     try:
         res, err = manipulate(scene, grasp, ManipulationSettings()), None

@@ -18,16 +18,16 @@ from torchhand.manipulation.plan import plan_motion
 from torchhand.scene import Environment
 from torchhand.synthesis.problem import required_wrench
 
-from .test_grasp import snapped_grasp
+from .test_grasp import box_turn_grasp
 from .test_plan import lift_scene, newton_euler
 
 HOVER = (6, 16)           # frames of the test lift: at rest, then the start of the 10 cm lift
 
 
 @pytest.fixture(scope="module")
-def hover(tmp_path_factory):
+def hover():
     """The grasped box without its table, frames HOVER of the lift: the hand carries everything."""
-    grasp, base = snapped_grasp(tmp_path_factory)
+    grasp, base = box_turn_grasp()
     scene = lift_scene(grasp, base).with_frames(*HOVER)
     return grasp, dataclasses.replace(scene, environment=Environment())
 

@@ -13,11 +13,19 @@ from torchhand.manipulation import grasp_hand
 from torchhand.manipulation.plan import GraspUnsuitable, PlanSettings, plan_motion
 from torchhand.scene import HandTrack, Scene
 
-from .test_grasp import snapped_grasp
+from .test_grasp import box_turn_grasp
 
 T = 40
 LIFT = (8, 32)            # frames of the 10 cm minimum-jerk lift; the box rests on the table before
-HEAVY = 1.5               # kg: Liu's heavy lift, too heavy for this grasp at the 30 N limit
+HEAVY = 2.3               # kg: Liu's heavy lift, too heavy for this grasp's own contacts at the 30 N limit
+WEAK = 28.0               # N: a weaker limit under which HEAVY still completes with added contacts
+# Margins, measured on the stored test grasp with PlanSettings(mass=m) at 30 N under both arithmetics of
+# docs/manipulation.md ("Checks"; the same brackets): the grasp's own contacts stop holding between 1.65 and 1.69 kg
+# (contacts are added above; without added contacts GraspUnsuitable), and with added contacts the lift becomes
+# unsuitable between 3.13 and 3.28 kg. Balance, cones and limits are homogeneous in (mass, limit), so a verdict
+# depends on mass / limit only: thresholds 0.0550-0.0563 and 0.104-0.109 kg/N. HEAVY at 30 N (0.077 kg/N) lies a
+# factor 1.36 from each, HEAVY at WEAK (0.082 kg/N) a factor 1.46 and 1.27, HEAVY at 10 N (0.23 kg/N) a factor 2.1
+# beyond the second, the 0.25 kg lift (0.0083 kg/N) a factor 6.6 below the first.
 
 
 def lift_scene(grasp, base) -> Scene:
@@ -35,8 +43,8 @@ def lift_scene(grasp, base) -> Scene:
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    grasp, base = snapped_grasp(tmp_path_factory)
+def setup():
+    grasp, base = box_turn_grasp()
     return grasp, lift_scene(grasp, base)
 
 
@@ -131,23 +139,26 @@ def test_heavy_lift_adds_contacts_next_to_the_largest_force(setup):
     # generated from the contact pushing hardest, on a neighbouring link of the same finger
     hand = grasp_hand(grasp)
     push = np.linalg.norm(plan.forces[t_a - 1, :], axis=-1) * plan.hand
+    print(f"added {plan.links[new]} at frame {t_a} from {plan.links[src]}; forces at {t_a - 1}: "
+          + ", ".join(f"{plan.links[i]} {push[i]:.2f} N" for i in np.argsort(-push)[:3]))
     assert src == int(np.argmax(push))
     assert plan.links[new] != plan.links[src]
     assert int(hand.link_finger[hand.link_index(plan.links[new])]) == \
         int(hand.link_finger[hand.link_index(plan.links[src])])
     err = check_plan(plan, scene, HEAVY, 30.0)
     assert err["force"] < 1e-6 and err["torque"] < 1e-6 and err["cone"] < 1e-9 and err["limit"] < 1e-7, err
-    # the per-frame LPs of the additions against HiGHS, infeasible ones included (here and with a 20 N limit,
-    # which needs five added contacts)
-    weaker = plan_motion(scene, grasp, PlanSettings(mass=HEAVY, max_contact_force=20.0, keep_problems=True))
-    assert weaker.num_added > plan.num_added
-    assert check_plan(weaker, scene, HEAVY, 20.0)["force"] < 1e-6
+    # the per-frame LPs of the additions against HiGHS, infeasible ones included (here and with the weaker limit,
+    # which the additions must respect as well)
+    weaker = plan_motion(scene, grasp, PlanSettings(mass=HEAVY, max_contact_force=WEAK, keep_problems=True))
+    assert weaker.num_added >= 1
+    err = check_plan(weaker, scene, HEAVY, WEAK)
+    assert err["force"] < 1e-6 and err["torque"] < 1e-6 and err["cone"] < 1e-9 and err["limit"] < 1e-7, err
     verdicts = highs_verdicts(plan.records) + highs_verdicts(weaker.records)
     agree = sum(a == b for a, b in verdicts) / len(verdicts)
     print(f"per-frame LPs vs HiGHS: {len(verdicts)} LPs ({sum(b for _, b in verdicts)} feasible), "
           f"agreement {100 * agree:.1f} %")
     assert agree == 1.0
-    assert sum(not b for _, b in verdicts) >= 3 and any(b for _, b in verdicts)
+    assert sum(not b for _, b in verdicts) >= 2 and any(b for _, b in verdicts)     # an infeasible frame per plan
 
 
 def highs_verdicts(records) -> list[tuple[bool, bool]]:

@@ -192,14 +192,14 @@ def test_bad_derivatives_setting():
         SynthSettings(derivatives="exact")
 
 
-def test_manipulate_analytic_matches_finite_differences(tmp_path_factory):
+def test_manipulate_analytic_matches_finite_differences():
     """Frames 6..11 of box-turn from the test grasp (taken at frame 6, so the first frame settles little): the
-    motion with analytic Jacobians is the one with forward differences up to the latter's truncation error (joint
-    angles and wrist within 1e-6 rad / m). (From a grasp moved to another frame, the settling first frame ends in
+    motion with analytic Jacobians is the one with forward differences up to the latter's truncation error as the
+    unconverged frames carry it (joint angles and wrist within 1e-5 rad / m). (From a grasp moved to another frame, the settling first frame ends in
     the elastic mode, where a 1e-7 relative change of the Jacobian already changes the motion by centiradians.)"""
-    from tests.torchhand.test_grasp import FRAME, snapped_grasp
+    from tests.torchhand.test_grasp import FRAME, box_turn_grasp
 
-    grasp, base = snapped_grasp(tmp_path_factory)
+    grasp, base = box_turn_grasp()
     scene = load_scene("box-turn").with_frames(FRAME, FRAME + 5)
     assert np.allclose(scene.object_pose[0].numpy(), base.object_pose[FRAME].numpy(), atol=1e-12)
     scene = dataclasses.replace(scene, object=base.object)
@@ -207,6 +207,12 @@ def test_manipulate_analytic_matches_finite_differences(tmp_path_factory):
            for m in ("analytic", "finite")}
     a, b = res["analytic"], res["finite"]
     assert a.q.shape == b.q.shape == (5, grasp.q.shape[0])
-    assert np.abs(a.q - b.q).max() < 1e-6
-    assert np.abs(a.root - b.root).max() < 1e-6
-    assert np.abs(a.torque - b.torque).max() < 1e-6 * (1 + np.abs(b.torque).max())
+    # Bound: forward differences with step h = 1e-7 err by about h |f''| + eps |f| / h ~ 1e-7 relative (the
+    # Jacobians themselves are held to that above, against central differences and MuJoCo). The per-frame synthesis
+    # stops at its iteration budget (docs/manipulation.md), so such an error reaches the motion through every
+    # iteration's step: measured 3.9e-6 (AMD EPYC, native) and 2.8e-6 (ATEN_CPU_CAPABILITY=default,
+    # OPENBLAS_CORETYPE=Sandybridge, MKL_CBWR=COMPATIBLE); 1e-5 rad / m leaves a margin of 2.5 over both.
+    tol = 1e-5
+    assert np.abs(a.q - b.q).max() < tol
+    assert np.abs(a.root - b.root).max() < tol
+    assert np.abs(a.torque - b.torque).max() < tol * (1 + np.abs(b.torque).max())

@@ -30,6 +30,8 @@ import signal
 import sys
 from pathlib import Path
 
+from .._numerics import ENV_MODE, portable_env
+
 __all__ = ["RUN_FLAGS", "UNSUITABLE", "command", "describe_exit", "environment", "main", "popen_kwargs",
            "run_device"]
 
@@ -56,10 +58,13 @@ def environment(threads: int, base: dict | None = None) -> dict:
     """The worker's environment: ``base`` (default ``os.environ``) with the thread pools of OpenMP, OpenBLAS and
     MKL (NumPy's and SciPy's, which the checker uses) sized to the job's ``threads``, so that ``workers``
     workers keep to ``workers × threads`` CPUs; idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE`` unless
-    set)."""
+    set); and the portable numeric profile (torchhand/_numerics.py) unless ``TORCHHAND_NUMERICS=native``, so that a
+    job's result does not depend on the CPU of the node that runs it."""
     env = dict(os.environ if base is None else base)
     env.update({k: str(threads) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    if env.get(ENV_MODE, "").strip() != "native":
+        env.update(portable_env())
     return env
 
 

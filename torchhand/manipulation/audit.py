@@ -8,7 +8,8 @@ direction of sliding ones (Eq. 7).
   mapped to torchhand's order (torque about the root origin, force, joint torques) and compared with ``torque``.
 * :func:`contact_motion`: the material points of every hand contact, placed by forward kinematics of the stored
   motion (the hand point, ``contact_hand_local``) and by the stored object pose (the object point,
-  ``contact_object_local``), differenced over each frame: their tangential relative velocity. Static contacts
+  ``contact_object_local``), differenced over each frame: their tangential relative velocity (where the contact
+  crossed an edge within the frame, the smaller of its tangential speeds about the two faces' normals). Static contacts
   should not move (at most 1 mm/s); a sliding one's friction force on the object should point along the hand
   point's velocity relative to the object (Eq. 7: the hand drags the object's surface with it).
 
@@ -17,6 +18,7 @@ Needs ``mujoco`` for the torques (a test extra).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -108,6 +110,10 @@ class ContactMotion:
         return float(np.mean(self.cos >= bound)) if len(self.cos) else float("nan")
 
 
+EDGE_COS = math.cos(math.radians(45.0))
+"""A contact whose object normal turns by more than 45 degrees between two frames has crossed an edge."""
+
+
 def contact_motion(result_dir) -> ContactMotion:
     """:class:`ContactMotion` of a manipulation result directory (module docstring): the hands are the result's
     own (``load_result``; two hands: each contact on its side's hand and motion), the points its stored link-frame
@@ -144,6 +150,11 @@ def contact_motion(result_dir) -> ContactMotion:
             n = z["contact_normal"][t, j]
             vt = v - (v @ n) * n
             speed = float(np.linalg.norm(vt))
+            n0 = z["contact_normal"][t - 1, i]
+            if float(n @ n0) < EDGE_COS:
+                # the point crossed an edge: its normal jumped from one face's to the other's within the frame, and
+                # motion along the face it left is separation from that face, not slip; the smaller counts
+                speed = min(speed, float(np.linalg.norm(v - (v @ n0) * n0)))
             if not z["contact_sliding"][t, j] and not z["contact_added"][t, j]:
                 static_pairs += 1
                 static_speed = max(static_speed, speed)
