@@ -21,7 +21,7 @@ from torchhand.manipulation.audit import mujoco_torque_error
 from torchhand.manipulation.synth import dense_qp
 from torchhand.scene import load_scene
 
-from .test_grasp import box_turn_grasp
+from .test_grasp import FRAME, box_turn_grasp
 
 START, T = 14, 12            # box-turn's frames 14..25: the box starts turning on the table (friction to overcome)
 
@@ -30,7 +30,7 @@ def turn_scene(base):
     """Frames START .. START+T of the built-in box-turn with the grasp's object (the box at rest at the grasp's
     frame has the pose it has at frame START)."""
     scene = load_scene("box-turn").with_frames(START, START + T)
-    assert np.allclose(scene.object_pose[0].numpy(), base.object_pose[-1].numpy(), atol=1e-12)
+    assert np.allclose(scene.object_pose[0].numpy(), base.object_pose[FRAME].numpy(), atol=1e-12)
     return dataclasses.replace(scene, object=base.object)
 
 
