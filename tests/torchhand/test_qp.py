@@ -487,19 +487,30 @@ def test_ipm_path_on_planner_window_qps_is_complementary_and_matches_clarabel():
     tol = qp_tolerances(torch.float64).tol
     size_d = torch.stack([mv(Q, res.z).abs().amax(1), p.abs().amax(1),
                           (mv(G.transpose(1, 2), res.lam) + mv(A.transpose(1, 2), res.nu)).abs().amax(1)]).amax(0)
-    dual_ratio = float((res.residual_dual / (tol * (1 + size_d))).max())      # judged last (below)
+    ratios = res.residual_dual / (tol * (1 + size_d))
+    defect = ratios > 1.0                                     # the known defect below, judged last
+    dual_ratio = float(ratios.max())
     scale = 1 + (0.5 * (res.z * mv(Q, res.z)).sum(1)).abs() + (p * res.z).sum(1).abs()
     gap = (res.lam * slack).sum(1)                                               # lam^T (h - G z), N^2
     assert bool((gap.abs() <= 1e-9 * scale).all()), gap.abs().max()
     assert float(torch.minimum(res.lam, slack).abs().max()) <= 1e-8             # per row: lam_i = 0 or slack_i = 0
     for i, q in enumerate(qps):
+        if bool(defect[i]):                                   # its point is not what CONVERGED claims (below)
+            print(f"problem {i}: dual residual {float(ratios[i]):.2f} times the claim; objective not compared")
+            continue
         ref, st = clarabel_window_qp(*(getattr(q, k)[0].numpy() for k in ("Q", "p", "G", "h", "A", "b")))
         assert st in ("Solved", "AlmostSolved")                  # AlmostSolved: Clarabel's reduced accuracy
         rel = (float(res.objective[i]) - ref) / max(1.0, abs(ref))
         # not above Clarabel's optimum by more than 1e-8 relative (the old answers were 2e-8 to 1.2e-7 above);
         # below it by at most 1e-7 (our point is primal feasible to 1e-9 relative: where it is lower, Clarabel,
         # at ~1e-8 accuracy on these degenerate problems, is the less accurate one)
-        assert -1e-7 <= rel <= 1e-8, (i, rel)
+        if st == "AlmostSolved":
+            # Clarabel's reduced accuracy: its optimum is known to its reduced relative gap tolerance only
+            import clarabel
+
+            assert abs(rel) <= clarabel.DefaultSettings().reduced_tol_gap_rel, (i, rel, st)
+            continue
+        assert -1e-7 <= rel <= 1e-8, (i, rel, st)
     if dual_ratio > 1.0:
         # A known defect of the kernel, not of this test: one problem's polished point passes the kernel's
         # converged test on the reduced (equality-eliminated, scaled) problem while its dual residual on the
