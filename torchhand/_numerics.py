@@ -23,6 +23,7 @@ This module imports nothing but the standard library at load time.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from dataclasses import asdict, dataclass
@@ -175,6 +176,12 @@ def _numpy_features() -> dict:
     return dict(__cpu_features__)
 
 
+@functools.lru_cache(maxsize=1)
+def _recorded() -> NumericsProfile:
+    return describe()
+
+
 def record() -> dict:
-    """:func:`describe` as the ``numerics`` entry of a ``stats.json``."""
-    return describe().as_dict()
+    """:func:`describe` as the ``numerics`` entry of a ``stats.json`` (probed once per process: the code paths are
+    fixed when the libraries load, and a run writes its partial stats.json after every solution)."""
+    return _recorded().as_dict()

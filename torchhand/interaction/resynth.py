@@ -50,8 +50,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._numerics import record as numerics_record
 from .._npz import read_npz
+from .._numerics import record as numerics_record
 from ..errors import FileFormatError, InputValueError, UnknownNameError
 from ..kernels.status import SolverStatus
 from ._contacts import BODY_OBJECT, BODY_OBJECT_ENV, TablePlane, support_points

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._numerics import record as numerics_record
 from .._atomic import atomic_bytes, atomic_json
+from .._numerics import record as numerics_record
 from ..errors import InputValueError, TorchhandError
 from ..hand.mjcf import hand_to_mjcf
 from ..result import FORMAT_VERSION
