@@ -1,0 +1,211 @@
+"""Measure torchhand's architecture: import circles, layer violations, module and function sizes.
+
+    python scripts/architecture.py            # the figures, human readable
+    python scripts/architecture.py --json     # the same as JSON
+
+Every import statement counts, also those inside functions (a lazy import is still a dependency); imports under
+``if TYPE_CHECKING:`` do not. Modules are named as they are imported (``torchhand.kernels`` lives in ``kernels/``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+# import name -> directory, as pyproject.toml's package-dir says
+PACKAGE_DIRS = {"torchhand": ROOT / "torchhand", "torchhand.kernels": ROOT / "kernels",
+                "torchhand.render": ROOT / "render"}
+MODULE_LINES = 500
+FUNCTION_LINES = 100
+
+
+@dataclass
+class Module:
+    name: str
+    path: Path
+    is_package: bool
+    lines: int
+    imports: set[str] = field(default_factory=set)
+    functions: list[tuple[str, int, int]] = field(default_factory=list)   # (qualified name, first line, length)
+
+
+def discover() -> dict[str, Module]:
+    modules: dict[str, Module] = {}
+    for prefix, base in PACKAGE_DIRS.items():
+        for path in sorted(base.rglob("*.py")):
+            rel = path.relative_to(base).with_suffix("")
+            parts = list(rel.parts)
+            is_package = parts[-1] == "__init__"
+            if is_package:
+                parts = parts[:-1]
+            name = ".".join([prefix, *parts])
+            if name in modules:          # kernels/ under torchhand/kernels would collide; first one wins
+                continue
+            text = path.read_text(encoding="utf-8")
+            modules[name] = Module(name, path, is_package, len(text.splitlines()))
+    return modules
+
+
+def _type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
+
+
+def _resolve(mod: Module, node: ast.ImportFrom | ast.Import, known: set[str]) -> set[str]:
+    out: set[str] = set()
+    if isinstance(node, ast.Import):
+        for alias in node.names:
+            name = alias.name
+            while name and name not in known:
+                name = name.rpartition(".")[0]
+            if name:
+                out.add(name)
+        return out
+    if node.level:
+        package = mod.name if mod.is_package else mod.name.rpartition(".")[0]
+        for _ in range(node.level - 1):
+            package = package.rpartition(".")[0]
+        base = f"{package}.{node.module}" if node.module else package
+    else:
+        base = node.module or ""
+    target = base
+    while target and target not in known:
+        target = target.rpartition(".")[0]
+    if not target:
+        return out
+    if target == base:
+        for alias in node.names:       # from pkg import submodule
+            sub = f"{base}.{alias.name}"
+            out.add(sub if sub in known else base)
+    else:
+        out.add(target)
+    return out
+
+
+def _walk(mod: Module, tree: ast.AST, known: set[str]) -> None:
+    def visit(node: ast.AST, scope: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and _type_checking(child):
+                for sub in child.orelse:
+                    visit(sub, scope)
+                continue
+            if isinstance(child, (ast.Import, ast.ImportFrom)):
+                mod.imports |= _resolve(mod, child, known)
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                qual = f"{scope}{child.name}"
+                length = (child.end_lineno or child.lineno) - child.lineno + 1
+                mod.functions.append((qual, child.lineno, length))
+                visit(child, qual + ".")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, f"{scope}{child.name}.")
+            else:
+                visit(child, scope)
+    visit(tree, "")
+
+
+def analyse() -> dict[str, Module]:
+    modules = discover()
+    known = set(modules)
+    for mod in modules.values():
+        _walk(mod, ast.parse(mod.path.read_text(encoding="utf-8")), known)
+        mod.imports.discard(mod.name)
+    return modules
+
+
+def _edges(modules: dict[str, Module]) -> dict[str, set[str]]:
+    """Module -> the modules it imports (a package's ``__init__`` importing its submodules counts too)."""
+    return {m.name: set(m.imports) for m in modules.values()}
+
+
+def circles(modules: dict[str, Module]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    edges = _edges(modules)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for start in sorted(edges):
+        if start in index:
+            continue
+        work = [(start, iter(sorted(edges[start])))]
+        index[start] = low[start] = counter
+        counter += 1
+        stack.append(start)
+        on.add(start)
+        while work:
+            v, it = work[-1]
+            for w in it:
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(edges.get(w, ())))))
+                    break
+                if w in on:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    comp = []
+                    while True:
+                        w = stack.pop()
+                        on.discard(w)
+                        comp.append(w)
+                        if w == v:
+                            break
+                    if len(comp) > 1:
+                        out.append(sorted(comp))
+    return sorted(out)
+
+
+def figures(modules: dict[str, Module]) -> dict:
+    funcs = [(f"{m.name}.{q}", n) for m in modules.values() for q, _, n in m.functions]
+    funcs.sort(key=lambda x: -x[1])
+    mods = sorted(((m.name, m.lines) for m in modules.values()), key=lambda x: -x[1])
+    return {
+        "modules": len(modules),
+        "lines": sum(m.lines for m in modules.values()),
+        "circles": circles(modules),
+        "largest_module": mods[0],
+        "modules_over_limit": [x for x in mods if x[1] > MODULE_LINES],
+        "largest_function": funcs[0],
+        "functions_over_limit": [x for x in funcs if x[1] > FUNCTION_LINES],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    fig = figures(analyse())
+    if args.json:
+        print(json.dumps(fig, indent=1))
+        return 0
+    print(f"{fig['modules']} modules, {fig['lines']} lines")
+    print(f"import circles: {len(fig['circles'])}")
+    for c in fig["circles"]:
+        print("  " + " <-> ".join(c))
+    print(f"largest module: {fig['largest_module'][0]} ({fig['largest_module'][1]} lines)")
+    print(f"modules over {MODULE_LINES} lines: {len(fig['modules_over_limit'])}")
+    for n, k in fig["modules_over_limit"]:
+        print(f"  {k:5d} {n}")
+    print(f"largest function: {fig['largest_function'][0]} ({fig['largest_function'][1]} lines)")
+    print(f"functions over {FUNCTION_LINES} lines: {len(fig['functions_over_limit'])}")
+    for n, k in fig["functions_over_limit"]:
+        print(f"  {k:5d} {n}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
