@@ -299,7 +299,7 @@ def solve_contact_lcp(lcp: KryPaiLCP, *, beta0: torch.Tensor | None = None, tol:
     Returns:
         :class:`ContactLCPResult`. INVALID_INPUT for NaN/inf data, mu < 0 or a non-positive normal compliance
         d_i0^T (G - U_phi)_ii d_i0 of an active contact; MAX_ITERATIONS when the sweeps stall (Coulomb friction
-        makes the LCP non-monotone: solve those with :func:`torchhand.lemke.lemke` on ``lcp.M, lcp.q``);
+        makes the LCP non-monotone: solve those with :func:`torchhand.solvers._lemke.lemke` on ``lcp.M, lcp.q``);
         UNBOUNDED when the iterate diverged (the last finite checkpoint is returned).
     """
     fn = "solve_contact_lcp"

@@ -14,7 +14,7 @@ non-zero at that frame) uses the single ray n + mu v_hat (Fig. 3; v_hat = the un
 point relative to the object point, so friction drags the object along with the hand) in column 0; columns 1-3
 are zero. Masked-out (slot, frame) pairs have four zero columns.
 
-Window QP (Eq. 4) in the form of :func:`torchhand.qp.solve_qp` / :func:`.convex_qp.solve_convex_qp`::
+Window QP (Eq. 4) in the form of :func:`torchhand.solvers._qpth.solve_qp` / :func:`.convex_qp.solve_convex_qp`::
 
     minimise  sum_t sum_i |B_i^t lambda_i^t - B_i^(t-1) lambda_i^(t-1)|^2      (Eq. 3; t = -1 is f_prev)
             = 1/2 z^T Q z + p^T z + offset

@@ -8,8 +8,8 @@ M (B, n, n) need not be symmetric, but every (active) diagonal entry must be pos
 step divides by. Convergence is guaranteed for symmetric positive definite M, for symmetric positive semidefinite M
 with a solution (slowly when M is far from full rank: thousands of sweeps), and for strictly diagonally dominant
 M; otherwise the solver reports what it reached (MAX_ITERATIONS, or UNBOUNDED when the iterate blew up) and never
-a silent NaN. Exact reference and fallback: :func:`torchhand.lemke.lemke` and
-:func:`torchhand.lcp.solve_lcp`.
+a silent NaN. Exact reference and fallback: :func:`torchhand.solvers._lemke.lemke` and
+:func:`torchhand.solvers.lcp.solve_lcp`.
 
 Method: one sweep updates x_i <- max(0, x_i - omega * w_i / M_ii) for i = 0..n-1 in order, keeping w = M x + q up
 to date with one column update per coordinate. The sweep over i is inherently sequential; it is vectorised over

@@ -2,7 +2,7 @@
 
 Drawing: :func:`render_frames` / :func:`write_video` turn :class:`Clip` s (built by :func:`clip_from_solution` from a
 result directory, or :func:`clip_from_hand` from joint angles and wrist poses) into frames and mp4 / GIF / PNG files;
-:func:`render_hand_motion` draws a hand alone. Result directories are read by :func:`torchhand.result.load_result`
+:func:`render_hand_motion` draws a hand alone. Result directories are read by :func:`torchhand.io.result.load_result`
 (the format is ``docs/result_format.md``).
 Plots: :mod:`torchhand.render.plots`. The ``torchhand render`` and ``torchhand plot`` commands call
 :mod:`torchhand.render.jobs`.

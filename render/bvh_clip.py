@@ -1,7 +1,7 @@
 """Skeletons from BVH motion, ready to draw: joint poses in the z-up metre world, bones, fingers, wrists.
 
-:func:`skeleton_from_bvh` reads a BVH file (:func:`torchhand.bvh.read_bvh`) and converts every joint's global
-transform with :func:`torchhand.mocap.convert_transforms` (handedness, then units, then up axis) into a
+:func:`skeleton_from_bvh` reads a BVH file (:func:`torchhand.scene.bvh.read_bvh`) and converts every joint's global
+transform with :func:`torchhand.scene.mocap.convert_transforms` (handedness, then units, then up axis) into a
 :class:`SkeletonClip`. Conventions (see :mod:`torchhand.conventions`): world z-up, metres, seconds; column-vector 4x4
 transforms ``T_world_joint``. End Sites are joints named ``<parent>_end``, drawn like any other joint.
 
@@ -23,7 +23,7 @@ Up axis (``up="auto"``)
     ankle along +z rather than along +y; otherwise y (the BVH convention), and always y for a hand rig.
 
 Hand frame (:meth:`SkeletonClip.hand_frames`)
-    The rule of :func:`torchhand.mocap.hand_frame_rotation`: x from the wrist toward the middle finger, y toward
+    The rule of :func:`torchhand.scene.mocap.hand_frame_rotation`: x from the wrist toward the middle finger, y toward
     the thumb for a right hand (away from it for a left hand), z = x × y out of the back of the hand. A wrist's
     side comes from its name (right/left, or an r/l prefix as in ``rHand``, ``L_wrist``), else from the words
     right/left in the file's name (``leftHand.bvh``), else it is right.
@@ -62,7 +62,7 @@ class SkeletonClip:
     kind: "body" or "hand"; size: the measure the units rule uses, metres
     units, up, handedness: the conversion applied ("cm", "y", "right", ...); units_auto, up_auto: whether those
         were guessed
-    bvh: the :class:`~torchhand.bvh.BVHClip` it came from
+    bvh: the :class:`~torchhand.scene.bvh.BVHClip` it came from
     """
 
     path: str
@@ -121,7 +121,7 @@ class SkeletonClip:
 
     def hand_frames(self, wrist: int) -> np.ndarray:
         """``T_world_hand`` of the hand at joint ``wrist``, (F, 4, 4), metres (hand frame: module docstring)."""
-        from torchhand.mocap import hand_frame_rotation
+        from torchhand.scene.mocap import hand_frame_rotation
 
         R_fix, _, _ = hand_frame_rotation(self.bvh, wrist, self.side(wrist), handedness=self.handedness,
                                           up_axis=self.up)
@@ -221,14 +221,14 @@ def skeleton_from_bvh(path, *, units: str = "auto", up: str = "auto", handedness
     """Read the BVH file ``path`` as a :class:`SkeletonClip` in the z-up metre world.
 
     units: "auto" (module docstring) or a key of :data:`UNIT_SCALES`; up: "auto", "y" or "z";
-    handedness: "right", or "left" for left-handed sources (mirrored, see :mod:`torchhand.mocap`).
+    handedness: "right", or "left" for left-handed sources (mirrored, see :mod:`torchhand.scene.mocap`).
 
     Raises:
-        MissingFileError, FileFormatError: the file is missing or malformed (from :func:`torchhand.bvh.read_bvh`).
+        MissingFileError, FileFormatError: the file is missing or malformed (from :func:`torchhand.scene.bvh.read_bvh`).
         InputValueError: a bad option, or units to guess for a skeleton without extent.
     """
-    from torchhand.bvh import read_bvh
-    from torchhand.mocap import convert_transforms
+    from torchhand.scene.bvh import read_bvh
+    from torchhand.scene.mocap import convert_transforms
 
     _choice(units, "--bvh-units", ("auto", *UNIT_SCALES))
     _choice(up, "--bvh-up", ("auto", "y", "z"))

@@ -114,8 +114,8 @@ def clip_from_hand(q: np.ndarray, root: np.ndarray, hand=None, *, fps: float = 3
 
 
 def clip_from_solution(result, solution, *, labels=()) -> Clip:
-    """The clip of ``solution`` (:class:`~torchhand.result.Solution`) in ``result``'s scene
-    (:class:`~torchhand.result.Result`): hands, object, table, contacts and forces."""
+    """The clip of ``solution`` (:class:`~torchhand.io.result.Solution`) in ``result``'s scene
+    (:class:`~torchhand.io.result.Result`): hands, object, table, contacts and forces."""
     scene = result.scene
     hands = []
     for hs in solution.hands:

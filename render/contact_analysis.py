@@ -43,7 +43,7 @@ class FingerContacts:
 def finger_contacts(solution, hand_models: dict, *, friction: float | None = None) -> FingerContacts:
     """Contact state and force magnitudes per finger and frame.
 
-    solution: :class:`~torchhand.result.Solution`
+    solution: :class:`~torchhand.io.result.Solution`
     hand_models: side -> :class:`~torchhand.hand.HandModel` (for link -> finger)
     friction: friction coefficient for the cone limit (default: the solution's ``friction``)
     """

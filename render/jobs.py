@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from torchhand.errors import InputValueError, MissingFileError
-from torchhand.result import Result, Solution, load_result, load_solution, parse_solution_spec
+from torchhand.io.result import Result, Solution, load_result, load_solution, parse_solution_spec
 
 from .clip import Clip, clip_from_solution
 from .compose import RenderOptions, write_video

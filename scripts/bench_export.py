@@ -37,7 +37,7 @@ def main() -> int:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     from torchhand.export import export_result
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     res = load_result(args.result)
     n = len(res.solution_files)

@@ -3,7 +3,7 @@
 ``python scripts/bench_lcp.py [--device cpu] [--dtype float64] [--batch 4096] [--n 30] [--kinds pd psd]
 [--threads T] [--clarabel-subset 256] [--json OUT]``
 
-Problems: :func:`torchhand.lcp.random_lcp` (the tests' builder): symmetric positive definite M = A A^T / n + 0.1 I
+Problems: :func:`torchhand.solvers.lcp.random_lcp` (the tests' builder): symmetric positive definite M = A A^T / n + 0.1 I
 (condition number about 40 at n = 30) or rank-n/2 positive semidefinite M = A A^T / n, with a planted solution.
 torchhand: :func:`torchhand.kernels.lcp.solve_lcp_pgs` on the whole batch with tol = 1e-6 on ||min(x, Mx + q)||_inf,
 as plain PGS (omega = 1), SOR (omega = 1.2), SOR with float32 sweeps refined against exact float64 checks
@@ -36,7 +36,7 @@ from _timing import machine, print_table, time_fn, write_json  # noqa: E402
 
 from torchhand.kernels.lcp import solve_lcp_pgs  # noqa: E402
 from torchhand.kernels.status import SolverStatus  # noqa: E402
-from torchhand.lcp import random_lcp  # noqa: E402
+from torchhand.solvers.lcp import random_lcp  # noqa: E402
 
 TOL = 1e-6
 VARIANTS = {"pgs": dict(omega=1.0, check_every=5), "sor1.2": dict(omega=1.2, check_every=5),

@@ -39,9 +39,9 @@ import torch
 from torchhand.manipulation import manipulate
 from torchhand.manipulation.grasp import load_grasp
 from torchhand.manipulation.plan import GraspUnsuitable
-from torchhand.scene_io import export_scene_dir
-from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import grasp_path
+from torchhand.scene._writer import export_scene_dir
+from torchhand.scene.builtin import builtin_scene
+from torchhand.scene.builtin.liu import grasp_path
 
 SCENE = "liu-push"
 

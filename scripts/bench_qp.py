@@ -1,13 +1,13 @@
-"""QP benchmarks: the batched QP kernel and torchhand.qp (qpth) against Clarabel called per problem, same run.
+"""QP benchmarks: the batched QP kernel and torchhand.solvers._qpth (qpth) against Clarabel called per problem, same run.
 
 Suite ``window`` (the default): Liu 2009 window QPs (Eq. 4, n = 6 frames) built by
 ``tests/kernels/test_force_plan.py::window_problems`` and ``torchhand.kernels.force_plan.assemble_window_qp``:
 72 variables (3 hand contacts), 168 (3 hand + 4 table contacts) and 312 (5 hand + 8 table contacts), randomized box
 grasps along smooth trajectories (some infeasible, as they come), float64, batch sizes 1 and 64. Rows:
 ``torchhand.kernels.convex_qp.solve_convex_qp`` (interior point, then ADMM for undecided problems),
-``torchhand.dense_qp.solve_qp_dense`` (the same interior point and polish in NumPy / LAPACK, one problem at a time;
+``torchhand.solvers._dense.solve_qp_dense`` (the same interior point and polish in NumPy / LAPACK, one problem at a time;
 rows at B = 1 by default, ``--dense-max-batch``),
-``torchhand.qp.solve_qp`` (qpth, ``ridge`` 1e-8 since Q is only PSD) and Clarabel per problem with its set-up
+``torchhand.solvers._qpth.solve_qp`` (qpth, ``ridge`` 1e-8 since Q is only PSD) and Clarabel per problem with its set-up
 inside the timed region. ``speedup_vs_clarabel`` and
 ``speedup_vs_qpth`` are ratios of medians in this run; ``max_rel_obj_diff`` is |obj - obj_clarabel| /
 max(1, |obj_clarabel|) over the problems both solved; ``status_agreement`` compares solved / not solved.
@@ -18,7 +18,7 @@ Problems: B random strictly convex QPs of the size of Liu 2009's force-planning 
 from the tests' builder (``tests/torchhand/test_qp.py::random_qps``). Clarabel gets each problem through its
 Python API with the matrix set-up inside the timed region. Accuracy: objective relative to Clarabel's on the
 problems both solve, and agreement of the solved / infeasible classification. The LP feasibility rows compare
-:func:`torchhand.qp.lp_feasible` with Clarabel solving the same constraints with a zero objective.
+:func:`torchhand.solvers._qpth.lp_feasible` with Clarabel solving the same constraints with a zero objective.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from _timing import machine, print_table, time_fn, write_json  # noqa: E402
 from test_qp import clarabel_qp, random_qps  # noqa: E402
 
 from torchhand.kernels.status import SolverStatus  # noqa: E402
-from torchhand.qp import lp_feasible, solve_qp  # noqa: E402
+from torchhand.solvers._qpth import lp_feasible, solve_qp  # noqa: E402
 
 COLUMNS = ["name", "device", "dtype", "B", "median_s", "iqr_s", "problems_per_s", "speedup", "max_rel_obj_diff",
            "status_agreement", "converged"]
@@ -116,7 +116,7 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
     sys.path.insert(0, os.path.join(HERE, "..", "tests", "kernels"))
     from test_force_plan import window_problems
 
-    from torchhand.dense_qp import solve_qp_dense
+    from torchhand.solvers._dense import solve_qp_dense
     from torchhand.kernels.convex_qp import solve_convex_qp
     from torchhand.kernels.force_plan import assemble_window_qp
 
@@ -140,8 +140,8 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
             args = {k: v.to(device) for k, v in prob.items()}
             runs = [("kernel solve_convex_qp (ipm+admm)", lambda: solve_convex_qp(**args), repeats)]
             if B <= dense_max_batch and device == "cpu":
-                runs.append(("dense torchhand.dense_qp.solve_qp_dense", lambda: solve_qp_dense(**args), repeats))
-            runs.append(("qpth torchhand.qp.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats))
+                runs.append(("dense torchhand.solvers._dense.solve_qp_dense", lambda: solve_qp_dense(**args), repeats))
+            runs.append(("qpth torchhand.solvers._qpth.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats))
             t_qpth, first = None, len(rows)
             for name, fn, reps in runs:
                 res = fn()

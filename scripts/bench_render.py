@@ -27,7 +27,7 @@ def bench_render(scene: str = "box-turn", seconds: float = 2.0, size=(640, 480),
     from torchhand.render.backend import select_platform
     from torchhand.render.clip import clip_from_solution
     from torchhand.render.compose import RenderOptions, panel_camera, render_frames
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     import torchhand
 

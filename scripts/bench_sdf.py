@@ -23,7 +23,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # scripts/ is no
 from _timing import machine, print_table, time_fn, write_json  # noqa: E402
 
 from torchhand.kernels.sdf import sdf_trilinear  # noqa: E402
-from torchhand.sdf import SDFGrid  # noqa: E402
+from torchhand.geometry.sdf import SDFGrid  # noqa: E402
 
 MILLION = 1_048_576
 VOXEL = 0.002

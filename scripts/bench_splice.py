@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchhand.bvh import read_bvh
+from torchhand.scene.bvh import read_bvh
 from torchhand.kernels.dtw import dtw
 from torchhand.kernels.splice_cost import sign_cost, sign_cost_yaw, sign_features, smooth_derivatives, window_yaw
 from torchhand.splice.align import SpliceSettings, align, band_width

@@ -46,7 +46,7 @@ def _cli(args: list) -> int:
 def loaded_frames(result: Path, solution: int) -> str:
     """The hold/turn part of a solution: from 3 frames before the first frame whose hand forces are non-zero to 3
     frames after the last one (the hand then touches the object without load at both ends)."""
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     sol = load_result(result).solution(solution)
     total = np.linalg.norm(sol.contact_force * sol.contact_mask[..., None], axis=-1).sum(1)
@@ -59,7 +59,7 @@ def loaded_frames(result: Path, solution: int) -> str:
 def reference_friction_use(result: Path, solution: int, frames: str) -> tuple[float, float, float]:
     """|f_t| / (mu f_n) of the solution's loaded hand forces (|f| > 0.05 N) about its own contact normals, over the
     frames used: (median, max, fraction of them at 0.99 or more). 1 is the friction cone's boundary."""
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     res = load_result(result)
     sol = res.solution(solution)
@@ -87,7 +87,7 @@ def grasped_axis(inferred: Path) -> int:
 
 def write_scene(base: Path, out: Path, *, mesh=None, name: str, description: str) -> Path:
     """The inferred interaction's scene with another object mesh (same mass, same frame-0 pose)."""
-    from torchhand.objects import RigidObject
+    from torchhand.geometry.objects import RigidObject
     from torchhand.scene import load_scene
 
     scene = load_scene(base)
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     import trimesh
 
     from torchhand.check import check_result
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
     from torchhand.scene import load_scene
 
     out = Path(args.out)

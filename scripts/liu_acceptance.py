@@ -29,7 +29,7 @@ from torchhand.check import check_result
 from torchhand.cli import main as cli
 from torchhand.manipulation.audit import contact_motion, mujoco_torque_error
 from torchhand.manipulation.plots import load_trace, torque_deviation
-from torchhand.scenes.liu import LIU_SCENES, SHADOW_HAND, shared_data_dir
+from torchhand.scene.builtin.liu import LIU_SCENES, SHADOW_HAND, shared_data_dir
 
 
 def finger_deviation(result_dir: Path) -> float:

@@ -2,7 +2,7 @@
 
 How each grasp is made (deterministic: a seeded search on one thread, node budgets in work units):
 
-1. ``torchhand.scenes.liu.approach_scene(scene)``: the object at rest at the scene's frame-0 pose, the wrist moving
+1. ``torchhand.scene.builtin.liu.approach_scene(scene)``: the object at rest at the scene's frame-0 pose, the wrist moving
    6 cm along the palm normal onto the scene's frame-0 hand pose (the approach of the other built-in scenes),
    written as a scene directory.
 2. ``torchhand synthesize`` on its first 8 frames with a small search (4 trees, 8 candidates, at most 2000 node
@@ -16,9 +16,9 @@ byte-identical.
 
 ``liu-roll`` (a two-finger pinch on a small cylinder) is made differently, by :func:`make_roll`: a fixed pinch
 posture with the cylinder placed between the thumb's and the index's distal capsules
-(:func:`torchhand.scenes.liu.roll_pinch`), snapped with a 2 mm tolerance so that only the two fingertips touch.
+(:func:`torchhand.scene.builtin.liu.roll_pinch`), snapped with a 2 mm tolerance so that only the two fingertips touch.
 ``liu-press`` likewise, by :func:`make_press`: a fitted posture with the thumb, index and middle fingertips on the
-plate's top face (:func:`torchhand.scenes.liu.press_pose`), snapped with the default 5 mm tolerance.
+plate's top face (:func:`torchhand.scene.builtin.liu.press_pose`), snapped with the default 5 mm tolerance.
 
     python scripts/make_liu_grasps.py [--only liu-drag ...] [--work DIR] [--check]
     python scripts/make_liu_grasps.py --test-grasp
@@ -48,9 +48,9 @@ from torchhand.hand import default_hand
 from torchhand.hand.mount import track_hand
 from torchhand.manipulation import Grasp, grasp_hand, save_grasp, snap_grasp
 from torchhand.manipulation.snap import SNAP_TOL
-from torchhand.scene_io import export_scene_dir
-from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import (
+from torchhand.scene._writer import export_scene_dir
+from torchhand.scene.builtin import builtin_scene
+from torchhand.scene.builtin.liu import (
     _GRASPS,
     LIU_SCENES,
     SHADOW_HAND,
@@ -156,7 +156,7 @@ def make_shadow_lift(work: Path | None = None) -> Path:
        face pointing into it, the thumb tip on the near face, the little finger curled clear of the box);
     2. ``snap_grasp`` with the default 5 mm tolerance (measured on the Shadow's own geoms' surface samples);
     3. saved with ``hand`` = ``SHADOW_HAND``, the path relative to the shared data directory
-       (``torchhand.scenes.liu.load_packaged_grasp`` resolves it; the Shadow files are not shipped).
+       (``torchhand.manipulation.grasp.load_packaged_grasp`` resolves it; the Shadow files are not shipped).
 
     How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a least-squares fit of
     the wrist and every finger joint, starting from the palm 3 cm over the top face, each of the four fingertip

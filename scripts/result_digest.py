@@ -1,4 +1,4 @@
-"""Print the digest of each result directory's solution arrays (torchhand._digest.solutions_digest).
+"""Print the digest of each result directory's solution arrays (torchhand.io.digest.solutions_digest).
 
     python scripts/result_digest.py out/box-turn [more results ...]
 """
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from torchhand._digest import solutions_digest
+from torchhand.io.digest import solutions_digest
 
 if __name__ == "__main__":
     for path in sys.argv[1:]:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchhand.bvh import read_bvh
+from torchhand.scene.bvh import read_bvh
 from torchhand.kernels.dtw import dtw, pairwise_cost
 from torchhand.splice.align import SpliceSettings, align, band_width, path_median
 from torchhand.splice.markers import virtual_markers

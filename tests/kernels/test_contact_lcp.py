@@ -13,7 +13,7 @@ from torchhand.kernels.contact_lcp import (ContactLCPResult, build_kry_pai_lcp, 
                                            solve_contact_lcp)
 from torchhand.kernels.lcp import lcp_tolerances
 from torchhand.kernels.status import SolverStatus
-from torchhand.lemke import lemke
+from torchhand.solvers._lemke import lemke
 
 CONVERGED, INVALID = int(SolverStatus.CONVERGED), int(SolverStatus.INVALID_INPUT)
 RES_TOL = {torch.float32: 1e-4, torch.float64: 1e-9}     # explicit-LCP residual reached (N and m mixed)

@@ -238,8 +238,8 @@ MM_SMALL = ["HS21", "HS35", "HS35MOD", "HS51", "HS52", "HS53", "HS76", "HS118", 
 @pytest.mark.parametrize("name", MM_SMALL)
 def test_maros_meszaros(name, solver):
     """Small Maros-Meszaros problems against Clarabel's objectives: the batched kernel and the single-problem dense
-    path (torchhand.dense_qp, the Liu planner's solver on the CPU)."""
-    from torchhand.dense_qp import solve_qp_dense
+    path (torchhand.solvers._dense, the Liu planner's solver on the CPU)."""
+    from torchhand.solvers._dense import solve_qp_dense
 
     root = shared_path("qp", "maros_meszaros")
     ref = json.loads((root / "maros_meszaros_reference_objectives.json").read_text())[name]

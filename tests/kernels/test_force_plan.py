@@ -233,11 +233,11 @@ def test_pinch_is_rank_deficient_and_twist_leaves_the_range(gen):
 
 
 def test_frame_lps_against_highs(gen):
-    """Per-frame feasibility verdicts of the kernel (torchhand.qp.lp_feasible(method="admm")) agree with SciPy
+    """Per-frame feasibility verdicts of the kernel (torchhand.solvers._qpth.lp_feasible(method="admm")) agree with SciPy
     HiGHS on every instance, feasible and infeasible kinds mixed."""
     from scipy.optimize import linprog
 
-    from torchhand.qp import lp_feasible
+    from torchhand.solvers._qpth import lp_feasible
 
     ref, ours = [], []
     for kind, table in (("grasp", False), ("grasp", True), ("pinch", False), ("pinch_twist", False),

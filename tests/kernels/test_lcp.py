@@ -16,8 +16,8 @@ import torch
 
 from torchhand.kernels.lcp import LCPResult, lcp_tolerances, solve_lcp_pgs
 from torchhand.kernels.status import SolverStatus
-from torchhand.lcp import random_lcp, read_siconos_lcp
-from torchhand.lemke import lemke
+from torchhand.solvers.lcp import random_lcp, read_siconos_lcp
+from torchhand.solvers._lemke import lemke
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from conftest import shared_path  # noqa: E402

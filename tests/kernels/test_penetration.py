@@ -256,7 +256,7 @@ def test_sorted_samples_path_matches_general_path():
     import trimesh
 
     from torchhand.hand import default_hand
-    from torchhand.sdf import SDFGrid
+    from torchhand.geometry.sdf import SDFGrid
 
     hand = default_hand(dtype=torch.float64)
     sdf = SDFGrid.from_mesh(trimesh.creation.box((0.08, 0.06, 0.05)), 0.002).to("cpu", torch.float64)

@@ -23,7 +23,7 @@ import trimesh
 
 import torchhand
 from torchhand.hand.mjcf import save_mjcf
-from torchhand.result import FORMAT_VERSION
+from torchhand.io.result import FORMAT_VERSION
 from torchhand.scene import environment_contacts
 
 FORCE_N = 3.0

@@ -25,7 +25,7 @@ import pytest
 
 from torchhand.render.clip import Clip, clip_from_solution
 from torchhand.render.compose import RenderOptions, panel_camera, render_frames, render_hand_motion
-from torchhand.result import load_result
+from torchhand.io.result import load_result
 
 from .fixture_result import rest_pose_motion, write_fixture_result
 

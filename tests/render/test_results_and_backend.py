@@ -12,7 +12,7 @@ import torchhand
 from torchhand.render import backend
 from torchhand.render.camera import frame_points, look_at
 from torchhand.render.contact_analysis import FREE, SLIDING, STATIC, finger_contacts
-from torchhand.result import load_result
+from torchhand.io.result import load_result
 
 from .fixture_result import write_fixture_result
 

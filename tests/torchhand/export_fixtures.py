@@ -28,8 +28,8 @@ FIRST = 10
 
 def body_result(root: Path, body: str, *, q_ramp: float = 0.9, fps: float | None = None) -> tuple[Path, Path]:
     """(result directory, body BVH path) for ``body`` in :data:`BODIES`; ``fps`` resamples the scene."""
-    from torchhand.bvh import read_bvh
-    from torchhand.mocap import import_mocap_scene
+    from torchhand.scene.bvh import read_bvh
+    from torchhand.scene.mocap import import_mocap_scene
 
     parts, wrist, units, up = BODIES[body]
     path = shared_path("mocap", *parts)

@@ -26,7 +26,7 @@ from torchhand.batch import load_manifest
 from torchhand.batch.manifest import OPTIONS
 from torchhand.cli import main as cli
 from torchhand.errors import TorchhandError
-from torchhand.result import load_result
+from torchhand.io.result import load_result
 
 SMALL = """
 [defaults]

@@ -23,7 +23,7 @@ from torchhand.batch.manifest import CAPTURE_OPTIONS, MANIPULATE_OPTIONS
 from torchhand.batch.worker import RUN_FLAGS
 from torchhand.cli import main as cli
 from torchhand.errors import TorchhandError
-from torchhand.scenes.liu import grasp_path
+from torchhand.scene.builtin.liu import grasp_path
 
 from .test_resynth import pinch_files
 

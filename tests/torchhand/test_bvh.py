@@ -14,7 +14,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from torchhand.bvh import euler_to_matrix, matrix_to_euler, read_bvh, unwrap_euler, write_bvh
+from torchhand.scene.bvh import euler_to_matrix, matrix_to_euler, read_bvh, unwrap_euler, write_bvh
 from torchhand.errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
                               TorchhandError, UnknownNameError)
 

@@ -1,4 +1,4 @@
-"""Blender as the client of :func:`torchhand.bvh.write_bvh`: files written by torchhand are imported with Blender's
+"""Blender as the client of :func:`torchhand.scene.bvh.write_bvh`: files written by torchhand are imported with Blender's
 own BVH importer (``io_anim_bvh``, shipped in the ``bpy`` wheel) and the posed armature is compared with torchhand's
 FK (``BVHClip.global_transforms``).
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from torchhand.bvh import read_bvh, write_bvh
+from torchhand.scene.bvh import read_bvh, write_bvh
 
 from tests.conftest import shared_data_dir
 

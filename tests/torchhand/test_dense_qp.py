@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchhand.dense_qp import solve_dense, solve_qp_dense
+from torchhand.solvers._dense import solve_dense, solve_qp_dense
 from torchhand.errors import InputValueError, ShapeError
 from torchhand.kernels.convex_qp import qp_tolerances, solve_convex_qp
 from torchhand.kernels.force_plan import assemble_window_qp

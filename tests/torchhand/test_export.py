@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from torchhand.bvh import read_bvh
+from torchhand.scene.bvh import read_bvh
 from torchhand.cli import main
 from torchhand.export.skeleton import axis_change, hand_motion_clip, hand_skeleton
 from torchhand.hand import HandModel
 from torchhand.hand.default import default_hand
-from torchhand.mocap import convert_transforms
-from torchhand.result import load_result
+from torchhand.scene.mocap import convert_transforms
+from torchhand.io.result import load_result
 
 from tests.conftest import shared_path
 from tests.render.fixture_result import write_fixture_result
@@ -44,7 +44,7 @@ def fingertips_world(model, q, root):
 @pytest.mark.parametrize("which", ["default", "default-left", "shadow_hand", "allegro_hand"])
 def test_hand_bvh_matches_fk(tmp_path, which, units, up):
     """Written, read back and posed by the BVH reader: every link origin and fingertip where FK puts it."""
-    from torchhand.bvh import write_bvh
+    from torchhand.scene.bvh import write_bvh
 
     model = dict(_hands())[which] if which.startswith("default") else HandModel.from_mjcf(
         shared_path("hands", which, "right_hand.xml"))
@@ -52,7 +52,7 @@ def test_hand_bvh_matches_fk(tmp_path, which, units, up):
     T = 40
     q = model.random_q(T, g).double().numpy()
     ang = torch.rand(T, 3, generator=g, dtype=torch.float64) * 6 - 3
-    from torchhand.euler import euler_to_matrix
+    from torchhand.geometry.euler import euler_to_matrix
 
     root = np.tile(np.eye(4), (T, 1, 1))
     root[:, :3, :3] = euler_to_matrix(ang, "ZYX").numpy()

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import torch
 
-from torchhand.bvh import read_bvh
+from torchhand.scene.bvh import read_bvh
 from torchhand.cli import main
-from torchhand.mocap import convert_transforms
-from torchhand.result import load_result
+from torchhand.scene.mocap import convert_transforms
+from torchhand.io.result import load_result
 
 from tests.render.fixture_result import write_fixture_result
 

@@ -15,7 +15,7 @@ import torch
 
 from torchhand.errors import InputTypeError, InputValueError
 from torchhand.export.gltf import Y_UP_ROTATION, link_node_names, solution_glb, write_solution_glb
-from torchhand.result import load_result
+from torchhand.io.result import load_result
 
 from tests.render.fixture_result import write_fixture_result
 
@@ -253,7 +253,7 @@ def test_robot_hand_meshes_and_tips(case, name):
 
     from tests.conftest import shared_path
     from torchhand.hand import HandModel
-    from torchhand.result import HandSolution
+    from torchhand.io.result import HandSolution
 
     result, index, _ = case
     model = HandModel.from_mjcf(shared_path("hands", name, "right_hand.xml"))

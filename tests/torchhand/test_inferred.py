@@ -125,7 +125,7 @@ def test_from_result_resynthesis_on_a_smaller_box_passes_the_check(tmp_path_fact
     import trimesh
 
     from torchhand.check import check_result
-    from torchhand.objects import RigidObject
+    from torchhand.geometry.objects import RigidObject
     from torchhand.scene import load_scene
 
     res = small_result(tmp_path_factory)
@@ -164,7 +164,7 @@ def test_friction_margin_keeps_the_wrench_inside_smaller_cones(tmp_path_factory,
     from scipy import sparse
 
     from torchhand.interaction.inferred import with_friction_margin
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     res = load_result(small_result(tmp_path_factory))
     sol = res.solution(0)
@@ -272,7 +272,7 @@ def test_checker_uses_the_solutions_own_mass(tmp_path_factory, tmp_path):
     from torchhand.check import check_result
     from torchhand.check.geometry import object_mesh
     from torchhand.check.motion import balance_errors
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     res = _copy(small_result(tmp_path_factory), tmp_path / "mass")
     before = check_result(res).solutions[0].figures["force_error"]

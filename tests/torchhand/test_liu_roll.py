@@ -16,8 +16,8 @@ from scipy.optimize import linprog
 from torchhand.cli import main as cli
 from torchhand.manipulation import grasp_hand, load_grasp
 from torchhand.manipulation.plan import BALANCE_ALLOWANCE, plan_motion
-from torchhand.scenes import builtin_scene
-from torchhand.scenes.liu import ROLL_HEIGHT, ROLL_RADIUS, grasp_path
+from torchhand.scene.builtin import builtin_scene
+from torchhand.scene.builtin.liu import ROLL_HEIGHT, ROLL_RADIUS, grasp_path
 
 from .test_plan import newton_euler
 

@@ -20,9 +20,9 @@ from torchhand.manipulation import grasp_hand, load_grasp, snap_grasp
 from torchhand.manipulation.grasp import check_grasp_hand
 from torchhand.manipulation.plots import load_trace, torque_deviation
 from torchhand.manipulation.audit import contact_motion, mujoco_torque_error
-from torchhand.scenes import builtin_scene, list_builtin_scenes
-from torchhand.scenes.builtin import FPS, TABLE_HEIGHT
-from torchhand.scenes.liu import (
+from torchhand.scene.builtin import builtin_scene, list_builtin_scenes
+from torchhand.scene.builtin.ye_liu import FPS, TABLE_HEIGHT
+from torchhand.scene.builtin.liu import (
     LIU_SCENES,
     PRESS_DEPTH,
     PRESS_HEIGHT,
@@ -31,8 +31,8 @@ from torchhand.scenes.liu import (
     SHADOW_HAND,
     grasp_path,
     grasp_paths,
-    load_packaged_grasp,
 )
+from torchhand.manipulation.grasp import load_packaged_grasp
 
 from ..conftest import shared_path
 
@@ -411,7 +411,7 @@ def test_approach_scene_ends_on_the_hold_pose():
     """The grasp source: the object still at frame-0 pose, the wrist 6 cm back along the palm normal (+z of the hand
     frame) at its first frame and on the scene's frame-0 hand pose from frame 10 on; no external wrench."""
     from torchhand.errors import InputValueError
-    from torchhand.scenes.liu import approach_scene
+    from torchhand.scene.builtin.liu import approach_scene
 
     scene = builtin_scene("liu-push")
     a = approach_scene(scene)

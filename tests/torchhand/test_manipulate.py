@@ -140,7 +140,7 @@ def test_result_keys_and_stats(runs):
     assert z["torque"].shape == (T, 6 + D) and z["torque_rest"].shape == (6 + D,)
     assert z["contact_added"].shape == z["contact_mask"].shape and z["q"].shape == (T, D)
     assert json.loads((d / "stats.json").read_text())["method"] == "liu2009"
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
     assert load_result(d).solution(0).T == T
 
 
@@ -211,7 +211,7 @@ def test_cli_unsuitable_grasp_exits_1(scene_dir, tmp_path, capsys):
     import re
     import shutil
 
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     scene = load_scene(scene_dir)
     push = torch.zeros(scene.T, 6, dtype=torch.float64)

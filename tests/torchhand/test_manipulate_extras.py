@@ -127,15 +127,15 @@ def test_balance_errors_with_an_external_wrench():
 
 # ------------------------------------------------------------------------------------------------ built-in grasps
 def test_builtin_scene_grasp_lookup(monkeypatch, tmp_path):
-    """A built-in scene name without --grasp uses ``torchhand.scenes.liu.grasp_path(name)``; None keeps the error;
+    """A built-in scene name without --grasp uses ``torchhand.scene.builtin.liu.grasp_path(name)``; None keeps the error;
     --grasp given once per hand, at most twice."""
-    import torchhand.scenes as scenes_pkg
+    import torchhand.scene.builtin as scenes_pkg
     from torchhand.cli.manipulate_cmd import _grasp_paths
 
     shipped = tmp_path / "box-turn.grasp.npz"
-    fake = types.ModuleType("torchhand.scenes.liu")
+    fake = types.ModuleType("torchhand.scene.builtin.liu")
     fake.grasp_path = lambda name: shipped if name == "box-turn" else None
-    monkeypatch.setitem(sys.modules, "torchhand.scenes.liu", fake)
+    monkeypatch.setitem(sys.modules, "torchhand.scene.builtin.liu", fake)
     monkeypatch.setattr(scenes_pkg, "liu", fake, raising=False)
     assert _grasp_paths("box-turn", None) == [shipped]
     assert [p.name for p in _grasp_paths("box-turn", ["mine.npz"])] == ["mine.npz"]

@@ -10,9 +10,9 @@ import pytest
 import torch
 import trimesh
 
-from torchhand.bvh import read_bvh
+from torchhand.scene.bvh import read_bvh
 from torchhand.errors import FileFormatError, InputValueError, ShapeError, UnknownNameError
-from torchhand.mocap import convert_transforms, hand_frame_rotation, import_mocap_scene, manipnet_scene
+from torchhand.scene.mocap import convert_transforms, hand_frame_rotation, import_mocap_scene, manipnet_scene
 from torchhand.scene import environment_contacts
 
 from tests.conftest import shared_data_dir as shared_data

@@ -141,7 +141,7 @@ def test_allegro_synthesizes_cube_turn_and_mujoco_replays_it(allegro_cube):
     """The Allegro hand on the built-in cube-turn: a solution within a node budget (the same on any machine for a
     thread count; the checker's verdict is the next test's); the result's hand.xml replays in MuJoCo by qpos."""
     mujoco = pytest.importorskip("mujoco")
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     out = allegro_cube
     res = load_result(out)
@@ -206,7 +206,7 @@ def test_checker_finger_and_contact_distances_on_mjcf_geoms(allegro_cube):
     mujoco = pytest.importorskip("mujoco")
     from torchhand.check.mjcf_geometry import geom_contact_gaps, geom_finger_depths
     from torchhand.check.penetration import finger_pairs
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     res = load_result(allegro_cube)
     hand, sol, xml = res.hand_models["right"], res.solution(0), allegro_cube / "hand.xml"

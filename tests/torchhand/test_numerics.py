@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from torchhand._digest import solutions_digest
+from torchhand.io.digest import solutions_digest
 from torchhand._numerics import PORTABLE_ENV, cpu_has_avx2
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -13,7 +13,7 @@ import trimesh
 
 import torchhand
 from torchhand.errors import FileFormatError, InputTypeError, InputValueError, MeshError, MissingFileError
-from torchhand.objects import (
+from torchhand.geometry.objects import (
     DEFAULT_DENSITY,
     RigidObject,
     check_watertight,

@@ -19,7 +19,7 @@ import torch
 
 from torchhand.errors import InputTypeError, InputValueError, ShapeError
 from torchhand.kernels.status import SolverStatus
-from torchhand.qp import QP_TOLERANCES, FeasibilityResult, QPResult, lp_feasible, solve_qp
+from torchhand.solvers._qpth import QP_TOLERANCES, FeasibilityResult, QPResult, lp_feasible, solve_qp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from conftest import shared_path  # noqa: E402

@@ -12,9 +12,9 @@ import torch
 import trimesh
 
 import torchhand
-from torchhand.collision import hand_object_penetration
+from torchhand.hand.collision import hand_object_penetration
 from torchhand.errors import InputTypeError, InputValueError, ShapeError
-from torchhand.sdf import SDFGrid
+from torchhand.geometry.sdf import SDFGrid
 from torchhand.synthesis.reconstruct import ContactTrack, ReconstructStatus, reconstruct_motion
 
 CONTACT_FINGERS = (0, 1, 2)  # thumb, index, middle hold the object; ring and little are free

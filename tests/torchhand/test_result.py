@@ -12,7 +12,7 @@ import pytest
 import torchhand
 from torchhand.errors import (FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError,
                               UnknownNameError)
-from torchhand.result import FORMAT_VERSION, load_result, load_solution, parse_solution_spec, solution_from_arrays
+from torchhand.io.result import FORMAT_VERSION, load_result, load_solution, parse_solution_spec, solution_from_arrays
 
 from ..render.real_result import real_box_turn
 
@@ -215,7 +215,7 @@ def test_import_stays_light():
     import subprocess
     import sys
 
-    code = ("import sys, torchhand.result\n"
+    code = ("import sys, torchhand.io.result\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'pyrender', 'trimesh')\n"
             "             or m.startswith('torchhand.synthesis')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

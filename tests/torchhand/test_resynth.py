@@ -74,7 +74,7 @@ def run_pinch(masses, grip: str = "none", fps: float = 120.0, solver: str = "lem
 def pinch_files(directory, *, half=HALF, mass: float = 0.05, fps: float = 60.0, lift: float = 0.05):
     """A scene directory (the pinch as an MJCF hand with a mount sidecar, the box on a table at z = 0) and an
     interaction.npz (source "constructed"); returns (scene dir, interaction path)."""
-    from torchhand.objects import RigidObject
+    from torchhand.geometry.objects import RigidObject
     from torchhand.scene import Environment, HandTrack, Scene
 
     d = Path(directory)
@@ -182,7 +182,7 @@ def test_imminent_grip_tightens_before_slip():
 def test_cli_writes_a_result_the_checker_reads(tmp_path):
     from torchhand.check import check_result
     from torchhand.cli import main
-    from torchhand.result import load_result
+    from torchhand.io.result import load_result
 
     scene_dir, inter = pinch_files(tmp_path / "in")
     out = tmp_path / "out"

@@ -17,8 +17,8 @@ from torchhand.conventions import check_transforms
 from torchhand.errors import (FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError,
                               UnknownNameError)
 from torchhand.scene import (Environment, HandTrack, Scene, environment_contacts, interpolate_poses, load_scene)
-from torchhand.scenes import builtin_scene, builtin_scene_description, list_builtin_scenes
-from torchhand.scenes.builtin import PALM_CENTRE, make_mug_mesh
+from torchhand.scene.builtin import builtin_scene, builtin_scene_description, list_builtin_scenes
+from torchhand.scene.builtin.ye_liu import PALM_CENTRE, make_mug_mesh
 
 REQUIRED = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box")
 

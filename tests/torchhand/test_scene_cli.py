@@ -10,7 +10,7 @@ import pytest
 
 from torchhand.cli import main
 from torchhand.scene import load_scene
-from torchhand.scenes import list_builtin_scenes
+from torchhand.scene.builtin import list_builtin_scenes
 
 from tests.conftest import shared_data_dir as shared_data
 

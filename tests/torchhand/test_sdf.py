@@ -14,9 +14,9 @@ import torch
 import trimesh
 
 import torchhand
-import torchhand.sdf as sdf_module
+import torchhand.geometry.sdf as sdf_module
 from torchhand.errors import InputTypeError, InputValueError, MeshError, ShapeError
-from torchhand.sdf import SDFGrid, inside_report, winding_number
+from torchhand.geometry.sdf import SDFGrid, inside_report, winding_number
 
 from tests.conftest import shared_path as shared
 

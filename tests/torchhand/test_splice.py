@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from tests.conftest import shared_path
-from torchhand.bvh import read_bvh, write_bvh
+from torchhand.scene.bvh import read_bvh, write_bvh
 from torchhand.cli import main
 from torchhand.kernels.dtw import dtw, pairwise_cost
 from torchhand.splice import SpliceSettings, align, detect_rig, prepare_out, splice, virtual_markers, write_splice

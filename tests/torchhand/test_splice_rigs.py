@@ -22,7 +22,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from torchhand.bvh import BVHClip, read_bvh
+from torchhand.scene.bvh import BVHClip, read_bvh
 from torchhand.errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
                               TorchhandError, UnknownNameError)
 from torchhand.splice import (FINGERS, FOREARM_LENGTH, HAND_LENGTH, detect_rig, finger_matches, hand_frame,
@@ -662,7 +662,7 @@ def test_insert_leap_hand_scales_units():
 
 
 def test_inserted_clip_writes_and_reads_back(tmp_path):
-    from torchhand.bvh import write_bvh
+    from torchhand.scene.bvh import write_bvh
 
     body, hand = _mocapbank(), _manipnet("left")
     ins = insert_fingers(body, detect_rig(body), "left", hand, detect_rig(hand), hand_handedness="left")
@@ -679,7 +679,7 @@ def test_torchhands_own_hand_is_recognised():
     import torch
 
     import torchhand
-    from torchhand.bvh import BVHClip
+    from torchhand.scene.bvh import BVHClip
 
     h = torchhand.default_hand("right").to("cpu", torch.float64)
     T = h.forward_kinematics(h.q_rest[None])[0].numpy()

@@ -18,7 +18,7 @@ from torchhand.interaction.step import (StepObject, StepSettings, TablePlane, in
 from torchhand.kernels.contact_lcp import effective_compliance, integrate_object, rigid_body_terms
 from torchhand.kernels.spatial import adjoint, gamma, se3_inverse
 from torchhand.kernels.status import SolverStatus
-from torchhand.sdf import SDFGrid
+from torchhand.geometry.sdf import SDFGrid
 
 F64 = torch.float64
 CONVERGED = int(SolverStatus.CONVERGED)

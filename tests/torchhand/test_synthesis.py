@@ -230,7 +230,7 @@ def test_free_fingers_started_inside_the_object_are_brought_out(box_turn_problem
     passes the kinematic test: free fingers that stay inside are solved again from the open hand."""
     _, p = box_turn_problem
     hand = p.hands[0]
-    from torchhand.collision import hand_object_penetration
+    from torchhand.hand.collision import hand_object_penetration
 
     N, t = 1, 30
     flexed = hand.q_rest.clone()
@@ -281,7 +281,7 @@ def test_manipnet_mug_segment_yields_checked_solutions(tmp_path):
     """Two seconds of ManipNet's mug1 (scene frames 614-674 at 30 fps: the right hand lifts the mug off the table
     and holds it): the search finds motions and every frame passes the exact checks."""
     from tests.conftest import shared_path
-    from torchhand.mocap import manipnet_scene
+    from torchhand.scene.mocap import manipnet_scene
 
     root = shared_path("mocap", "manipnet", "mug1")
     scene = manipnet_scene(root, fps=30.0, hands=("right",)).with_frames(614, 674)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from torchhand.cli import main as cli
-from torchhand.result import load_result
+from torchhand.io.result import load_result
 
 # box-turn's first 8 frames with a small search (4 trees of 8 candidates): a few seconds, a real path
 FRAMES = ["--frames", "0:8", "--trees", "4", "--candidates", "8"]

@@ -419,7 +419,7 @@ def _scene(entry: str, base: Path, where: str, seen: dict) -> tuple[str, str]:
         return d, f"sha256:{seen[d][1]}"
     if any(s in entry for s in ("/", "\\")) or entry in (".", ".."):
         raise MissingFileError(f"{where}: scenes: scene directory '{entry}' ({candidate}) does not exist")
-    from ..scenes import list_builtin_scenes
+    from ..scene.builtin import list_builtin_scenes
 
     if entry not in list_builtin_scenes():
         raise UnknownNameError(f"{where}: scenes: '{entry}' is neither a built-in scene nor a directory beside the "
@@ -463,10 +463,10 @@ def _tree_hash(directory: Path) -> str:
 
 def _grasp(entry: str, scene: str, scene_key: str, base: Path, where: str) -> tuple[str, bool]:
     """(absolute grasp path, whether it is the scene's own): ``"default"`` is a built-in scene's packaged grasp
-    (``torchhand.scenes.liu.grasp_path``) or ``grasp.npz`` in a scene directory."""
+    (``torchhand.scene.builtin.liu.grasp_path``) or ``grasp.npz`` in a scene directory."""
     if entry == "default":
         if scene_key.startswith("builtin:"):
-            from ..scenes.liu import grasp_path
+            from ..scene.builtin.liu import grasp_path
 
             found = grasp_path(scene)
             if found is None:

@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import FileFormatError
-from ..result import Result, Solution, load_result
+from ..io.result import Result, Solution, load_result
 from .contacts import cone_violations, contact_gaps, contact_slots
 from .geometry import ObjectMesh, object_mesh
 from .motion import (balance_errors, joint_acceleration, joint_limit_violation, joint_speed,

@@ -55,7 +55,7 @@ def balance_errors(sol, obj: ObjectMesh, mass: float, gravity: np.ndarray,
                    external: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Relative force and torque errors of every frame, (T,) each (see the module docstring).
 
-    sol: a :class:`torchhand.result.Solution`; mass: kg; gravity: (3,), m/s^2; external: the external wrench on
+    sol: a :class:`torchhand.io.result.Solution`; mass: kg; gravity: (3,), m/s^2; external: the external wrench on
     the object (:attr:`torchhand.scene.Scene.external_wrench`), (T, 6), force (N) and torque about the object's
     centre of mass (N m), world, or None. (The torque is taken about this mesh-derived centre of mass.)
     """

@@ -37,11 +37,11 @@ def run(args) -> int:
     apply_threads(args.threads)
     from tqdm import tqdm
 
-    from ..collision import finger_interpenetration, hand_object_penetration
+    from ..hand.collision import finger_interpenetration, hand_object_penetration
     from ..hand.mount import track_hand
     from ..hand.mjcf import save_mjcf
     from ..scene import environment_contacts, load_scene
-    from ..sdf import SDFGrid
+    from ..geometry.sdf import SDFGrid
 
     if args.device == "cuda" and not torch.cuda.is_available():
         raise InputValueError("--device cuda: no CUDA device is available; use --device cpu")

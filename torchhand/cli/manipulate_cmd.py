@@ -52,9 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _builtin_grasp(name: str) -> Path | None:
-    """The grasp shipped with the built-in scene ``name`` (``torchhand.scenes.liu.grasp_path``), or None."""
+    """The grasp shipped with the built-in scene ``name`` (``torchhand.scene.builtin.liu.grasp_path``), or None."""
     try:
-        from ..scenes import liu
+        from ..scene.builtin import liu
     except ImportError:
         return None
     find = getattr(liu, "grasp_path", None)
@@ -64,8 +64,9 @@ def _builtin_grasp(name: str) -> Path | None:
 
 def _packaged_grasp(name: str) -> tuple:
     """(the grasp shipped with the built-in scene ``name``, its hand resolved; a tuple for two hands), and its
-    files (``torchhand.scenes.liu``)."""
-    from ..scenes.liu import grasp_paths, load_packaged_grasp
+    files (``torchhand.scene.builtin.liu``)."""
+    from ..manipulation.grasp import load_packaged_grasp
+    from ..scene.builtin.liu import grasp_paths
 
     return load_packaged_grasp(name), grasp_paths(name)
 

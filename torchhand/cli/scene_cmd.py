@@ -44,7 +44,7 @@ def register(subparsers) -> None:
     q = sub.add_parser("import-mocap", help="build a scene directory from motion capture",
                        description="Build a scene from BVH motion capture (wrists from a hand BVH root or a body "
                        "BVH joint, the object from a BVH root or an npz of poses) and write it as a scene "
-                       "directory. See torchhand.mocap for the unit, up-axis, handedness and hand-frame "
+                       "directory. See torchhand.scene.mocap for the unit, up-axis, handedness and hand-frame "
                        "conversions.")
     q.add_argument("--out", required=True, metavar="DIR", help="scene directory to write")
     q.add_argument("--overwrite", action="store_true", help="replace scene files already in DIR")
@@ -90,7 +90,7 @@ def _add_frames_fps(q, frames_help: str = "keep frames START:STOP (Python slice,
 
 
 def _list(args) -> int:
-    from ..scenes import builtin_scene_description, list_builtin_scenes
+    from ..scene.builtin import builtin_scene_description, list_builtin_scenes
 
     names = list_builtin_scenes()
     width = max(len(n) for n in names)
@@ -124,7 +124,7 @@ def _export(args) -> int:
 
 
 def _import_mocap(args) -> int:
-    from ..mocap import import_mocap_scene, manipnet_scene
+    from ..scene.mocap import import_mocap_scene, manipnet_scene
 
     frames = _parse_frames(args.frames)
     table = _parse_table(args.table_height)

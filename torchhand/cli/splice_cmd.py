@@ -93,7 +93,7 @@ def run(args) -> int:
     threads = apply_threads(args.threads)
     from dataclasses import replace
 
-    from ..bvh import read_bvh
+    from ..scene.bvh import read_bvh
     from ..splice.align import SpliceSettings
     from ..splice.markers import UNITS
     from ..splice.output import prepare_out, write_splice

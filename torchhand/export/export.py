@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .._atomic import atomic_json, writable_dir
-from ..bvh import read_bvh, write_bvh
+from ..scene.bvh import read_bvh, write_bvh
 from ..errors import InputValueError
-from ..result import load_result, parse_solution_spec
+from ..io.result import load_result, parse_solution_spec
 from .skeleton import UNITS, UP_AXES, hand_motion_clip, hand_skeleton
 
 __all__ = ["FORMATS", "ExportReport", "export_result", "prepare_export_dir"]

@@ -64,7 +64,7 @@ _TYPES = {1: "SCALAR", 3: "VEC3", 4: "VEC4"}
 
 
 def solution_glb(result, index: int, *, contacts: bool = False, contact_radius: float = 0.004) -> bytes:
-    """The .glb bytes of solution ``index`` of ``result`` (a :class:`torchhand.result.Result`).
+    """The .glb bytes of solution ``index`` of ``result`` (a :class:`torchhand.io.result.Result`).
 
     index: solution position in ``result.solution_files``, 0 .. len - 1
     contacts: also write one sphere node ``contact_<k>`` per hand-object contact slot

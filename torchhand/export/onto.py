@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import InputValueError
 from ..splice.retarget import insert_fingers, retarget_fingers
 from ..splice.retime import local_rotations, rotations_to_channels
@@ -98,7 +98,7 @@ def fingers_onto_body(result, index: int, body: BVHClip, *, blend: float = 0.2, 
     """Write solution ``index`` of ``result`` onto ``body`` (module docstring).
 
     Args:
-        result: a :class:`~torchhand.result.Result` whose scene has a ``source`` (``scene import-mocap``)
+        result: a :class:`~torchhand.io.result.Result` whose scene has a ``source`` (``scene import-mocap``)
         index: the solution
         body: the captured clip the scene was imported from
         blend: seconds of ramp at each inner end of the segment, >= 0

@@ -20,10 +20,10 @@ Motion
     ``OFFSET`` of zero (so readers that add the channels to the OFFSET and readers that replace it agree). A
     joint whose origin moves relative to its parent (a slide joint, or a hinge whose MJCF anchor is off the body
     origin; none in the built-in, Shadow or Allegro hands) also gets position channels, holding its full local
-    position (Blender's importer and :mod:`torchhand.bvh` read a position channel as replacing the OFFSET).
+    position (Blender's importer and :mod:`torchhand.scene.bvh` read a position channel as replacing the OFFSET).
 
 Axes and units: ``up="z"`` keeps torchhand's world axes; ``up="y"`` (the usual BVH convention) maps torchhand's
-``(x, y, z)`` to ``(x, z, -y)``, the inverse of the y-up conversion of :mod:`torchhand.mocap`. ``units`` is
+``(x, y, z)`` to ``(x, z, -y)``, the inverse of the y-up conversion of :mod:`torchhand.scene.mocap`. ``units`` is
 ``"cm"`` (default, s = 100) or ``"m"`` (s = 1).
 """
 
@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import InputValueError, ShapeError
-from ..euler import matrix_to_euler, unwrap_euler
+from ..geometry.euler import matrix_to_euler, unwrap_euler
 
 __all__ = ["UNITS", "UP_AXES", "axis_change", "HandSkeleton", "hand_skeleton", "skeleton_motion",
            "skeleton_channels", "hand_motion_clip", "rotation_channels", "to_file"]
@@ -199,7 +199,7 @@ def skeleton_channels(skeleton: HandSkeleton, local_R: np.ndarray, local_p: np.n
 
 def hand_motion_clip(model, skeleton: HandSkeleton, q: np.ndarray, root_pose: np.ndarray | None, fps: float, *,
                      units: str = "cm", up: str = "y", path: str = "") -> BVHClip:
-    """The hand motion as a :class:`~torchhand.bvh.BVHClip` of ``skeleton`` (module docstring).
+    """The hand motion as a :class:`~torchhand.scene.bvh.BVHClip` of ``skeleton`` (module docstring).
 
     Args:
         model: the :class:`~torchhand.hand.HandModel` the skeleton was built from

@@ -55,7 +55,7 @@ from typing import NamedTuple
 
 import torch
 
-from ..collision import hand_object_penetration, rigid_inverse
+from ..hand.collision import hand_object_penetration, rigid_inverse
 from ..errors import InputValueError
 from ..hand.dynamics import point_jacobian
 
@@ -282,7 +282,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     """Contact slots of the hand against an object and/or a fixed plane (module docstring).
 
     hand: HandModel; q: finger joints, (B, D), radians; root: root pose, (B, 4, 4)
-    sdf: the object's :class:`~torchhand.sdf.SDFGrid` (object frame) or None; object_pose: T_world_object, (B, 4, 4)
+    sdf: the object's :class:`~torchhand.geometry.sdf.SDFGrid` (object frame) or None; object_pose: T_world_object, (B, 4, 4)
     plane: :class:`TablePlane` or None; margin: activation distance, metres; geometry: "samples" | "capsules"
         (how plane contacts are found)
     object_points: the object's support points, (P, 3), object frame, metres (:func:`support_points`), or None;

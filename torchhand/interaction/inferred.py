@@ -174,7 +174,7 @@ def capture_from_solution(sol, hand, *, hand_spec: str = "hand.xml") -> Capture:
     """The capture of a one-hand solution: forces on the hand (``-contact_force``) at the contact points in their
     link frames, one sensor per (link, occurrence) (module docstring).
 
-    sol: :class:`torchhand.result.Solution` (already restricted to the frames wanted); hand: HandModel of the
+    sol: :class:`torchhand.io.result.Solution` (already restricted to the frames wanted); hand: HandModel of the
     solution's joints; hand_spec: the capture's ``hand`` entry
     returns: :class:`Capture` with source "inferred" and the object poses
     raises: InputValueError (two hands, no contact in any frame), UnknownNameError (a contact link the hand lacks)
@@ -241,7 +241,7 @@ def with_friction_margin(sol, com, mu: float, margin: float):
     """The solution with each frame's hand forces re-solved inside cones of ``margin * mu`` for the same object
     wrench (module docstring).
 
-    sol: :class:`torchhand.result.Solution` (one hand); com: the object's centre of mass, (3,), object frame,
+    sol: :class:`torchhand.io.result.Solution` (one hand); com: the object's centre of mass, (3,), object frame,
     metres; mu: the hand-object friction coefficient; margin: F in (0, 1]
     returns: (solution, :class:`MarginReport`)
     """
@@ -302,7 +302,7 @@ def infer_interaction(result_dir, *, solution: int = 0, frames: str | tuple | No
                       compliance: str = "table1-exploring", friction_margin: float | None = 0.8) -> InferredInteraction:
     """Capture and interaction trajectory of one solution of a result directory (module docstring).
 
-    result_dir: a ``torchhand synthesize`` result (read with :func:`torchhand.result.load_result`)
+    result_dir: a ``torchhand synthesize`` result (read with :func:`torchhand.io.result.load_result`)
     solution: solution index; frames: "A:B" or (A, B) of the solution's frames, None for all
     compliance: Table 1 preset, "table1-exploring" or "table1-scratching"
     friction_margin: F in (0, 1]: re-solve the hand forces inside cones of F mu for the same object wrench (module
@@ -311,7 +311,7 @@ def infer_interaction(result_dir, *, solution: int = 0, frames: str | tuple | No
     raises: MissingFileError / FileFormatError (no or a malformed result), InputValueError (bad solution index,
         bad frames, a two-hand result, no contact in the frames, unknown preset)
     """
-    from ..result import load_result
+    from ..io.result import load_result
     from .capture import check_against_hand
     from .pipeline import generalized_coordinates, joint_torques
 

@@ -463,7 +463,7 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
     raises: InputValueError / UnknownNameError for inputs that do not fit (joint names, dt, ...)
     """
     from ..hand.mount import track_hand
-    from ..sdf import SDFGrid
+    from ..geometry.sdf import SDFGrid
 
     t_start = time.perf_counter()
     if len(scene.hands) != 1:
@@ -544,7 +544,7 @@ def solution_arrays(result: ResynthResult, index: int) -> dict:
     ``theta_r``, ``compliance``, ``slip_ratio``, ``lcp_status``, ``lcp_residual``, ``theta_err``, ``joint_clamp``,
     ``grip_events``,
     ``object_slip``, ``variant_mass``, ``variant_friction``, ``variant_compliance_scale``."""
-    from ..result import FORMAT_VERSION
+    from ..io.result import FORMAT_VERSION
 
     r = result.rollouts[index]
     hand = result.hand
@@ -575,7 +575,7 @@ def solution_arrays(result: ResynthResult, index: int) -> dict:
 
 
 def _stats(result: ResynthResult, written: list) -> dict:
-    from ..result import FORMAT_VERSION
+    from ..io.result import FORMAT_VERSION
 
     s = result.settings
     rolls = []

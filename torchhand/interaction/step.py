@@ -65,7 +65,7 @@ from torchhand.kernels.status import SolverStatus
 
 from ..conventions import check_tensor
 from ..errors import InputValueError
-from ..lemke import lemke
+from ..solvers._lemke import lemke
 from ._contacts import BODY_OBJECT, BODY_OBJECT_ENV, BODY_SELF, Contacts, TablePlane, find_contacts, self_pairs
 
 __all__ = ["StepObject", "StepSettings", "StepState", "StepReport", "TablePlane", "Contacts", "initial_state",
@@ -78,7 +78,7 @@ SOLVERS = ("lemke", "pgs", "auto")
 class StepObject:
     """The free rigid object of the step.
 
-    sdf:     its signed distance grid, :class:`~torchhand.sdf.SDFGrid`, object frame, in the state's dtype and device
+    sdf:     its signed distance grid, :class:`~torchhand.geometry.sdf.SDFGrid`, object frame, in the state's dtype and device
              (``SDFGrid.from_mesh`` builds float32: ``.to(dtype=torch.float64)`` for float64 rollouts)
     mass:    kg; com: centre of mass, (3,), object frame, metres; inertia: about the com, (3, 3), object axes, kg m^2
     mu:      friction coefficient with the hand
@@ -131,7 +131,7 @@ class StepObject:
     @classmethod
     def from_rigid(cls, obj, sdf, mu: float = 1.0, *, support: torch.Tensor | None = None,
                    masses=None, mus=None, mesh=None) -> "StepObject":
-        """From a :class:`~torchhand.objects.RigidObject` and its grid (support, masses, mus, mesh: see the
+        """From a :class:`~torchhand.geometry.objects.RigidObject` and its grid (support, masses, mus, mesh: see the
         fields; ``mesh=True`` takes the object's own mesh)."""
         mesh = obj.mesh if mesh is True else mesh
         return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu, support, masses, mus,

@@ -118,7 +118,7 @@ def contact_motion(result_dir) -> ContactMotion:
     """:class:`ContactMotion` of a manipulation result directory (module docstring): the hands are the result's
     own (``load_result``; two hands: each contact on its side's hand and motion), the points its stored link-frame
     and object-frame contact points."""
-    from ..result import load_result
+    from ..io.result import load_result
 
     res = load_result(result_dir)
     with np.load(Path(result_dir) / "solutions" / "sol_000.npz") as f:

@@ -27,6 +27,7 @@ hand, joint names and joint limits); :func:`save_grasp` writes atomically.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,9 +37,10 @@ import numpy as np
 
 from .._atomic import atomic_bytes
 from .._npz import read_npz
+from ..scene.builtin.liu import SHADOW_HAND, grasp_paths, shadow_hand_path
 from ..errors import FileFormatError, InputValueError, ShapeError, UnknownNameError
 
-__all__ = ["Grasp", "load_grasp", "save_grasp", "grasp_hand", "check_grasp_hand", "LIMIT_TOL"]
+__all__ = ["Grasp", "load_grasp", "save_grasp", "grasp_hand", "check_grasp_hand", "load_packaged_grasp", "LIMIT_TOL"]
 
 LIMIT_TOL = 1e-6
 """Joint angles may exceed the hand's limits by this much (radians) before a grasp is refused."""
@@ -255,3 +257,27 @@ def check_grasp_hand(grasp: Grasp, hand, *, where: str = "grasp") -> None:
     if unknown:
         raise UnknownNameError(f"{where}: contact_links {', '.join(unknown)} are not links of the hand "
                                f"{hand.name!r}")
+
+
+def load_packaged_grasp(scene_name: str, hand=None):
+    """The packaged grasp of a built-in scene, ready to use: :func:`~torchhand.manipulation.load_grasp` of
+    :func:`torchhand.scene.builtin.liu.grasp_path`, with a hand named relative to the shared reference data (``liu-shadow-lift``'s
+    :data:`SHADOW_HAND`) resolved to its file. With ``hand`` (one-hand scenes), also checked against it. A
+    two-hand scene gives a tuple of grasps in its hand order (:func:`torchhand.scene.builtin.liu.grasp_paths`).
+
+    Raises:
+        UnknownNameError: the scene has no packaged grasp; MissingFileError: its hand is not in the shared data;
+        the errors of ``load_grasp``.
+    """
+    paths = grasp_paths(scene_name)
+    if not paths:
+        raise UnknownNameError(f"scene: no packaged grasp for {scene_name!r}; packaged: {', '.join(LIU_SCENES)}")
+    grasps = []
+    for path in paths:
+        grasp = load_grasp(path)
+        if grasp.hand == SHADOW_HAND:
+            grasp = dataclasses.replace(grasp, hand=str(shadow_hand_path()))
+        if hand is not None and len(paths) == 1:
+            check_grasp_hand(grasp, hand, where=str(path))
+        grasps.append(grasp)
+    return grasps[0] if len(grasps) == 1 else tuple(grasps)

@@ -39,7 +39,7 @@ def grasp_from_result(result_dir, *, solution: int = 0, frame: int = 0, side: st
 
     Returns (grasp (unsnapped), scene): the scene is the result's (its object is the one to snap onto).
     """
-    from ..result import load_result
+    from ..io.result import load_result
 
     result = load_result(result_dir)
     sol = result.solution(solution)

@@ -48,7 +48,7 @@ from ..kernels.convex_qp import solve_convex_qp
 from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
 from ..kernels.status import SolverStatus
 from . import plan as _plan
-from ..dense_qp import solve_qp_dense
+from ..solvers._dense import solve_qp_dense
 from .grasp import Grasp
 from .plan import GraspUnsuitable, PlanSettings
 from .synth import HandFrame, SynthContext, SynthSettings, synthesize_frame, torques
@@ -588,7 +588,7 @@ def solution_arrays(result: ManipulationResult) -> dict:
     ``guiding_<side>`` and the method's ``torque_<side>``, ``torque_rest_<side>``, ``torque_names_<side>``; ``q``,
     ``root_pose``, ``joint_names``, ``torque``, ``torque_rest`` and ``torque_names`` repeat the right hand's, and
     ``contact_link_name`` lists ``right/<link>`` and ``left/<link>`` in the hands' order."""
-    from ..result import FORMAT_VERSION
+    from ..io.result import FORMAT_VERSION
 
     r = result
     T, K = r.contact_mask.shape
@@ -640,7 +640,7 @@ def stats_dict(result: ManipulationResult, unsuitable: GraspUnsuitable | None = 
     """stats.json of a manipulation result (``method: "liu2009"``). With ``unsuitable`` (the error that stopped the
     motion; ``result`` holds the frames done before it) the stats say ``complete: false``, ``status:
     "grasp_unsuitable"`` and give the frame and the wrench deficit under ``unsuitable``."""
-    from ..result import FORMAT_VERSION
+    from ..io.result import FORMAT_VERSION
 
     r, s = result, result.settings
     fps_run = r.T / r.timings["total_s"] if r.timings.get("total_s") else None

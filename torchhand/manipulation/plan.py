@@ -18,14 +18,14 @@ Window loop, for k = 0 .. T-1
        :func:`torchhand.kernels.force_plan.assemble_window_qp` and solved by
        :func:`torchhand.kernels.convex_qp.solve_convex_qp`: hand contacts at ``object_pose[t] @ p_i`` with
        transported tangents (``R_t t1_i``, so bases do not flip), static pyramids, normal force <= ``f_max``
-       (30 N); table contacts from :func:`torchhand.contacts_env.environment_contacts` (at most 8 per frame,
+       (30 N); table contacts from :func:`torchhand.scene._contacts.environment_contacts` (at most 8 per frame,
        farthest-point thinned), static or sliding as the object motion says (the sliding ray points along the
        table's velocity relative to the object's point, i.e. against the object's), lambda >= 0 only; the required
        wrench from :func:`torchhand.synthesis.problem.required_wrench` (less the scene's ``external_wrench``, which
        acts on the object: the contacts supply the rest). F_k = B_k lambda_k is kept; F_{k+1} ..
        are re-planned by the next window.
     2. Infeasible (Sec. 4.3): the per-frame LPs (:func:`~torchhand.kernels.force_plan.assemble_frame_lps`,
-       :func:`torchhand.qp.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
+       :func:`torchhand.solvers._qpth.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
        are ordered by decreasing |f_i|; for contact i on link S_i the new hand point is the hand surface sample
        (at the grasp pose) closest to h_i that is not on S_i, paired with its closest object point (normal from
        that face). Pairs are added one at a time, each active from t_a on, and the LPs re-tested; the loop stops
@@ -123,7 +123,7 @@ class PlanSettings:
     snap_tol: snap tolerance for a grasp without contacts, metres
     max_env_contacts: table contacts kept per frame
     keep_problems: keep every window QP and per-frame LP in ``ForcePlan.records`` (for tests and references)
-    qp_solver: "dense" (one problem at a time in NumPy / LAPACK, :func:`torchhand.dense_qp.solve_qp_dense`; the
+    qp_solver: "dense" (one problem at a time in NumPy / LAPACK, :func:`torchhand.solvers._dense.solve_qp_dense`; the
         default, about twice as fast per frame on a CPU) or "kernel" (the batched torch kernel,
         :func:`torchhand.kernels.convex_qp.solve_convex_qp`: ADMM warm-started, then the interior point)
     """
@@ -469,7 +469,7 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started when possible; the
     default), "auto" (the kernel's choice: ADMM with a warm start, the interior point without), "ipm" (the
     interior point, cold; the fallback for thin feasible sets, where ADMM stalls or declares infeasibility too
-    early) or "dense" (:func:`torchhand.dense_qp.solve_qp_dense`: the same interior point and polish in NumPy /
+    early) or "dense" (:func:`torchhand.solvers._dense.solve_qp_dense`: the same interior point and polish in NumPy /
     LAPACK for this one problem, far less overhead than the batched kernel at B = 1; the warm start is polished
     first, then starts the interior point; what it leaves undecided goes to the kernel).
     Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args,
@@ -480,7 +480,7 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     M = args["points"].shape[2]
     warm = _shift_warm(z_prev, n, M) if method != "ipm" else None
     if method == "dense":
-        from ..dense_qp import solve_qp_dense
+        from ..solvers._dense import solve_qp_dense
 
         res = solve_qp_dense(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm)
     else:
@@ -518,12 +518,12 @@ def _shift_warm(z_prev, n: int, M: int):
 def _frame_feasible(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings,
                     records: list | None = None) -> tuple[np.ndarray, FrameLPs, torch.Tensor]:
     """Per-frame LP feasibility of the window (Eq. 4 without objective), the n LPs in one batch, decided by
-    :func:`torchhand.qp.lp_feasible` with ``method="admm"`` (the convex-QP kernel with Q = 0 on unit rows; feasible
+    :func:`torchhand.solvers._qpth.lp_feasible` with ``method="admm"`` (the convex-QP kernel with Q = 0 on unit rows; feasible
     iff the witness's largest unit-row violation is below ``tol (1 + |h|_inf + |b|_inf)``, a bound that does not
     grow with the witness; undecided counts as infeasible).
     Returns (feasible (n,), lps, witness z (n, 4 M)).
     """
-    from ..qp import lp_feasible
+    from ..solvers._qpth import lp_feasible
 
     args = _window_arrays(c, geo, k, n, settings)
     lps = assemble_frame_lps(**args)
@@ -550,7 +550,7 @@ def _wrench_fit(c: _Contacts, geo: _Geometry, t: int, settings: PlanSettings):
     if settings.qp_solver == "kernel":
         res = solve_convex_qp(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0])
     else:
-        from ..dense_qp import solve_qp_dense
+        from ..solvers._dense import solve_qp_dense
 
         res = solve_qp_dense(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0])
     lam = res.z[0].clamp_min(0)
@@ -602,7 +602,7 @@ def _add_contacts(c: _Contacts, geo: _Geometry, k: int, n: int, feasible: np.nda
 
 def _qp(c, geo, k, n, f_prev, settings, records, z_prev=None):
     """The window QP, by default by the dense single-problem solver (``method="dense"``,
-    :func:`torchhand.dense_qp.solve_qp_dense`: the previous window's solution polished when its slots are the
+    :func:`torchhand.solvers._dense.solve_qp_dense`: the previous window's solution polished when its slots are the
     same, else the interior point (started from it) and polish in NumPy / LAPACK; what that leaves undecided
     goes to the kernel's interior point, then ADMM). With ``PlanSettings(qp_solver="kernel")`` (for
     comparisons), the batched torch kernel: ADMM (warm-started from the previous

@@ -106,7 +106,7 @@ def load_trace(path) -> ManipulationTrace:
         InputValueError: not a manipulation result (stats.json's method is not "liu2009");
         FileFormatError: a key of the manipulation result is missing.
     """
-    from ..result import load_result
+    from ..io.result import load_result
 
     root = Path(path)
     if not root.is_dir():

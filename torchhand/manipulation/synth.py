@@ -183,7 +183,7 @@ class SynthContext:
 
     def __init__(self, hand, mesh, u_bar: np.ndarray, fps: float, table_height: float | None,
                  gravity=(0.0, 0.0, -9.81), settings: SynthSettings | None = None, samples_per_link: int = 8):
-        from ..sdf import SDFGrid
+        from ..geometry.sdf import SDFGrid
 
         self.settings = settings or SynthSettings()
         self.hand = hand.to("cpu", torch.float64)
@@ -209,7 +209,7 @@ class SynthContext:
 
     def sdf_with_grad(self, points: np.ndarray):
         """Signed distance (P,) and its gradient (P, 3) of the object at object-frame points (P, 3), metres: the
-        grid's trilinear kernel called directly (the values of :meth:`~torchhand.sdf.SDFGrid.query_with_grad`
+        grid's trilinear kernel called directly (the values of :meth:`~torchhand.geometry.sdf.SDFGrid.query_with_grad`
         without its autograd wrapper and checks, which cost a fifth of a query at this size)."""
         sd, grad = self.sdf.query_with_grad_unchecked(torch.from_numpy(points)[None])
         return sd[0].numpy(), grad[0].numpy()

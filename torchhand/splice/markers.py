@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import InputValueError
-from ..mocap import convert_transforms
+from ..scene.mocap import convert_transforms
 
 __all__ = ["ArmJoints", "Markers", "virtual_markers", "guess_units", "guess_up_axis", "UNITS"]
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_bytes, atomic_json, writable_dir
-from ..bvh import write_bvh
+from ..scene.bvh import write_bvh
 from ..errors import InputValueError
 from .splice import SpliceResult
 

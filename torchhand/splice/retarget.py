@@ -2,7 +2,7 @@
 
 Rule (:func:`retarget_fingers`)
     In a BVH every joint's frame is aligned with the file's axes in the rest pose (every channel zero), so a
-    joint's local channel rotation ``L`` (``R(ch1) @ R(ch2) @ R(ch3)``, :mod:`torchhand.bvh`) is its rotation away
+    joint's local channel rotation ``L`` (``R(ch1) @ R(ch2) @ R(ch3)``, :mod:`torchhand.scene.bvh`) is its rotation away
     from rest, expressed in the rest axes. It is re-expressed in each rig's canonical hand frame at rest,
     ``H`` (columns: hand axes x, y, z in the file's rest coordinates, :func:`hand_frame`):
     ``Δ = Hsᵀ Ls Hs`` and ``Lt = Ht Δ Htᵀ`` on the destination joint with the same (finger, ordinal)
@@ -45,7 +45,7 @@ Insertion (:func:`insert_fingers`)
     to middle-fingertip length (to the middle finger's End Site, or its last joint) equals
     ``HAND_LENGTH * forearm / FOREARM_LENGTH`` = 0.19 m x (the body's forearm length / 0.26 m), which also
     converts the hand's units into the body's. The body, having no fingers, gets its hand frame from the fallback
-    rule of :func:`torchhand.mocap.hand_frame_rotation` (x from the wrist to its child or End Site, the back of
+    rule of :func:`torchhand.scene.mocap.hand_frame_rotation` (x from the wrist to its child or End Site, the back of
     the hand up for a horizontal arm, outward for a hanging one), so the inserted hand continues the forearm.
 
     The wrist's End Site, if it has one (the hand bone of a finger-less rig), is removed: it would run through the
@@ -65,7 +65,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import InputTypeError, InputValueError, ShapeError
 from .rigs import FINGERS, SIDES, Arm, Rig, _name_side, rest_positions
 
@@ -125,7 +125,7 @@ def hand_frame(clip: BVHClip, rig: Rig, side: str, *, handedness: str = "right",
 
     With fingers: x = wrist -> middle knuckle (the (middle, 1) joint; other knuckles when it is missing),
     y = pinky knuckle -> index knuckle made orthogonal to x for a right hand, its opposite for a left hand,
-    z = x × y (the back of the hand; the palm faces -z), as :func:`torchhand.mocap.hand_frame_rotation` but from
+    z = x × y (the back of the hand; the palm faces -z), as :func:`torchhand.scene.mocap.hand_frame_rotation` but from
     the recognised knuckles. Without fingers: that function's fallback (x toward the wrist's child or End Site,
     z up for a horizontal arm, away from the root for a hanging one; ``up_axis`` "y"/"z", guessed as the axis
     along which the trunk lies above the root when None).

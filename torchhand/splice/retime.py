@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..bvh import BVHClip, matrix_to_euler, unwrap_euler
+from ..scene.bvh import BVHClip, matrix_to_euler, unwrap_euler
 from ..errors import InputValueError
-from ..scene import _matrix_to_quat, _quat_to_matrix, _slerp
+from ..geometry.poses import matrix_to_quat, quat_to_matrix, slerp
 
 __all__ = ["rotation_order", "local_rotations", "retime_motion", "rotations_to_channels"]
 
@@ -98,8 +98,8 @@ def retime_motion(clip: BVHClip, frames: torch.Tensor | np.ndarray, *, joints: l
         if R_all0 is None:
             R_all0 = local_rotations(clip, a)
             R_all1 = local_rotations(clip, b)
-        q = _slerp(_matrix_to_quat(R_all0[:, j]), _matrix_to_quat(R_all1[:, j]), w)
-        R = _quat_to_matrix(q)
+        q = slerp(matrix_to_quat(R_all0[:, j]), matrix_to_quat(R_all1[:, j]), w)
+        R = quat_to_matrix(q)
         ref = torch.deg2rad(torch.from_numpy(a[:, cols]))
         ang = matrix_to_euler(R, order, reference=ref)
         out[:, cols] = np.rad2deg(unwrap_euler(ang, order).numpy())

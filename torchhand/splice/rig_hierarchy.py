@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 
 FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 """Finger names, thumb to pinky."""

@@ -65,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import FileFormatError, InputValueError, MissingFileError, UnknownNameError
 from .rig_hierarchy import (_TIP, FINGERS, _ancestors, _chain, _chain_roles, _children, _chirality,  # noqa: F401
                             _finger_chains, _hierarchy_fingers, _is_below, _joint_children, _order_chains, _tip,

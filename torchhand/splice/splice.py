@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from ..bvh import BVHClip
+from ..scene.bvh import BVHClip
 from ..errors import InputValueError
 from torchhand.kernels.status import SolverStatus
 from .align import Alignment, SpliceSettings, align

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..bvh import BVHClip, euler_to_matrix
+from ..scene.bvh import BVHClip, euler_to_matrix
 from ..errors import InputValueError
-from ..scene import _matrix_to_quat, _quat_to_matrix, _slerp
+from ..geometry.poses import matrix_to_quat, quat_to_matrix, slerp
 from .retime import local_rotations, retime_motion, rotation_order, rotations_to_channels
 
 __all__ = ["Warp", "make_warp", "HandSession", "make_hand_session", "LEVELS"]
@@ -146,11 +146,11 @@ def make_hand_session(body: BVHClip, level: str, generator: torch.Generator, *, 
 
         for joints, (lo, hi) in ((shoulders + elbows, (0.55, 0.9)), (wrists, (0.8, 1.0))):
             for j in joints:
-                q = _matrix_to_quat(R[:, j])
+                q = matrix_to_quat(R[:, j])
                 q = torch.where((q * q[:1]).sum(-1, keepdim=True) < 0, -q, q)
                 mean = q.mean(0, keepdim=True)
                 mean = (mean / mean.norm()).expand_as(q)
-                changed[j] = _quat_to_matrix(_slerp(mean, q, smooth_factor(lo, hi)))
+                changed[j] = quat_to_matrix(slerp(mean, q, smooth_factor(lo, hi)))
     for j, Rj in changed.items():
         R[:, j] = Rj
     if L >= 1:                                                                  # noise on every rotation

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..collision import rigid_inverse
+from ..hand.collision import rigid_inverse
 from .node_test import Guides, NodeTestSettings, pad_points, run_node_test
 from .problem import SynthesisProblem
 

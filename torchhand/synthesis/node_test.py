@@ -43,7 +43,7 @@ from torchhand.kernels.friction_cone import solve_friction_cone
 from torchhand.kernels.penetration import capsule_interpenetration
 from torchhand.kernels.status import SolverStatus
 
-from ..collision import hand_object_penetration
+from ..hand.collision import hand_object_penetration
 from .exact import capsule_depth as link_capsule_depth, mesh_normals
 from .reconstruct_bounds import table_depth as capsule_table_depth
 from .problem import SynthesisProblem

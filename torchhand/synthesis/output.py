@@ -30,7 +30,7 @@ from .._atomic import atomic_bytes, atomic_json
 from .._numerics import record as numerics_record
 from ..errors import InputValueError, TorchhandError
 from ..hand.mjcf import hand_to_mjcf
-from ..result import FORMAT_VERSION
+from ..io.result import FORMAT_VERSION
 from .node_test import contact_slots
 from .pipeline import SynthesisResult, diversity
 from .problem import SynthesisProblem
@@ -95,9 +95,9 @@ def solution_arrays(result: SynthesisResult, index: int) -> dict:
 
 
 def solution_view(result: SynthesisResult, index: int):
-    """Solution ``index`` as the result contract's :class:`torchhand.result.Solution` (NumPy), as a reader of the
+    """Solution ``index`` as the result contract's :class:`torchhand.io.result.Solution` (NumPy), as a reader of the
     written file would see it."""
-    from ..result import solution_from_arrays
+    from ..io.result import solution_from_arrays
     return solution_from_arrays(solution_arrays(result, index), Path(f"sol_{index:03d}.npz"))
 
 

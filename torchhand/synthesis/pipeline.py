@@ -89,7 +89,7 @@ class SynthesisResult:
     """Everything :func:`synthesize` produced: the problem, the finished solutions and the run's figures.
 
     finals: the written motions as :class:`FinalSolution` (torch, (T, H, D) joint angles); ``solutions`` gives them
-    as :class:`torchhand.result.Solution` (NumPy, the result contract: ``solutions[i].q`` (T, D) for one hand,
+    as :class:`torchhand.io.result.Solution` (NumPy, the result contract: ``solutions[i].q`` (T, D) for one hand,
     ``solutions[i].hand("left").q`` for either). ``save(dir)`` writes the result directory.
     """
 

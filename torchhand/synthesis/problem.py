@@ -24,13 +24,13 @@ import numpy as np
 import torch
 from kornia.geometry.conversions import rotation_matrix_to_axis_angle
 
-from ..collision import rigid_inverse
+from ..hand.collision import rigid_inverse
 from ..errors import ShapeError
 from ..hand.mount import track_hand
 from ..hand.model import HandModel
-from ..objects import sample_surface
+from ..geometry.objects import sample_surface
 from ..scene import EnvContacts, Scene, environment_contacts
-from ..sdf import SDFGrid
+from ..geometry.sdf import SDFGrid
 
 __all__ = ["SynthesisProblem", "build_problem", "required_wrench", "finger_workspace"]
 

@@ -53,11 +53,11 @@ from dataclasses import dataclass
 import torch
 
 from .._tree import tree_map, tree_to
-from ..collision import rigid_inverse
+from ..hand.collision import rigid_inverse
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputTypeError, InputValueError, ShapeError
 from ..hand.model import HandModel
-from ..sdf import SDFGrid
+from ..geometry.sdf import SDFGrid
 from .exact import capsule_penetration
 from .reconstruct_bounds import (SPEED_MARGIN, finger_pair_parts, speed_penalty, speed_terms, speed_update,
                                  speed_values, table_constraint_parts, table_depth)

@@ -23,9 +23,10 @@ import numpy as np
 import torch
 import trimesh
 
-from ..objects import RigidObject
-from ..scene import Environment, HandTrack, Scene
-from . import register_scene
+from ...geometry.objects import RigidObject
+from .._model import Scene
+from .._parts import Environment, HandTrack
+from ._registry import register_scene
 
 __all__ = ["TABLE_HEIGHT", "FPS", "PALM_CENTRE", "make_mug_mesh"]
 

@@ -2,7 +2,7 @@
 shipped with the grasp it starts from (``torchhand/scenes/grasps/<name>.npz``, :func:`grasp_path`).
 
 They are the inputs of ``torchhand manipulate`` (docs/manipulation.md): an object motion and a grasp. Every scene
-follows the conventions of :mod:`torchhand.scenes.builtin` (30 fps, z-up metres, the table at ``TABLE_HEIGHT``,
+follows the conventions of :mod:`torchhand.scene.builtin.ye_liu` (30 fps, z-up metres, the table at ``TABLE_HEIGHT``,
 hand-object friction 0.8, object-table friction 0.4, minimum-jerk profiles, no randomness) and has three phases:
 
 1. rest (6 frames): the object at rest, the hand holding it (the method starts from the grasp's equilibrium);
@@ -12,7 +12,7 @@ hand-object friction 0.8, object-table friction 0.4, minimum-jerk profiles, no r
    6 frames before the last frame).
 
 The hand track is the one right hand holding the object rigidly from frame 0: ``T_world_hand = T_world_object @
-T_object_hand`` with the nominal grasp frame of :func:`torchhand.scenes.builtin._grasp` (palm over the top face,
+T_object_hand`` with the nominal grasp frame of :func:`torchhand.scene.builtin.ye_liu._grasp` (palm over the top face,
 fingers along +x over the far edge, thumb toward +y). ``torchhand manipulate`` does not follow this track (it
 synthesizes the wrist from the grasp); the track is the scene contract's, and the source of the packaged grasps:
 :func:`approach_scene` is the scene's first pose with the builtin approach (the wrist moving 6 cm along the palm
@@ -35,7 +35,7 @@ a fitted posture (:func:`press_pose`, ``make_press`` in the script).
 ``liu-shadow-lift`` is liu-lift with the Shadow hand of the shared reference data (:func:`shadow_hand_path`; not
 shipped): a fitted posture (:func:`shadow_pose`) with three fingertips on the far face and the thumb on the near
 one. Its packaged grasp names the hand relative to the shared data directory (:data:`SHADOW_HAND`);
-:func:`load_packaged_grasp` resolves it.
+:func:`torchhand.manipulation.grasp.load_packaged_grasp` resolves it.
 
 ``liu-two-hand-lift`` has two hands: the big box of ``two-hand-box`` pressed between two flat hands
 (:func:`two_hand_pose`) and lifted; it ships one grasp per hand (``liu-two-hand-lift.npz``, the right hand, and
@@ -53,11 +53,12 @@ import numpy as np
 import torch
 import trimesh
 
-from ..errors import InputValueError, MissingFileError, UnknownNameError
-from ..objects import RigidObject
-from ..scene import DEFAULT_GRAVITY, HandTrack, Scene
-from . import register_scene
-from .builtin import (
+from ...errors import InputValueError, MissingFileError
+from ...geometry.objects import RigidObject
+from .._model import Scene
+from .._parts import DEFAULT_GRAVITY, HandTrack
+from ._registry import register_scene
+from .ye_liu import (
     _APPROACH,
     _GAP,
     TABLE_HEIGHT,
@@ -72,7 +73,7 @@ from .builtin import (
 
 __all__ = ["LIU_SCENES", "PRESS_DEPTH", "PRESS_EXTENTS", "PRESS_HEIGHT", "PRESS_PRELOAD", "PRESS_STIFFNESS",
            "PUSH_FORCE", "REST", "SHADOW_HAND", "ROLL_CENTRE", "ROLL_DEGREES", "ROLL_HEIGHT", "ROLL_RADIUS",
-           "TWO_HAND_SNAP_TOL", "approach_scene", "grasp_path", "grasp_paths", "load_packaged_grasp", "press_pose", "roll_pinch",
+           "TWO_HAND_SNAP_TOL", "approach_scene", "grasp_path", "grasp_paths", "press_pose", "roll_pinch",
            "shadow_hand_path", "shadow_pose", "shared_data_dir", "two_hand_pose"]
 
 REST = 6
@@ -97,7 +98,7 @@ def _upright(centre: np.ndarray) -> np.ndarray:
 def _posture(hand, degrees: dict, *, rest: bool = True) -> tuple:
     """(hand, q (D,) radians): ``hand`` (the default right hand when None) at its rest angles (``rest=False``: at
     0) with the joints named in ``degrees`` set."""
-    from ..hand import default_hand
+    from ...hand import default_hand
 
     hand = default_hand() if hand is None else hand
     names = list(hand.joint_names)
@@ -409,7 +410,7 @@ def liu_shadow_lift() -> Scene:
     Raises:
         MissingFileError: the shared reference data has no Shadow hand.
     """
-    from ..hand.mount import track_hand
+    from ...hand.mount import track_hand
 
     lift = liu_lift()
     model = str(shadow_hand_path())
@@ -459,7 +460,7 @@ def two_hand_pose(side: str) -> tuple[np.ndarray, np.ndarray]:
     """The liu-two-hand-lift grasp of one hand before snapping: the default ``side`` hand's joint angles and
     ``T_object_hand`` (the palm flat on the box's +x face for the right hand, -x for the left, fingers along +y,
     thumbs up)."""
-    from ..hand import default_hand
+    from ...hand import default_hand
 
     _, q = _posture(default_hand(side), _TWO_HAND_POSTURE, rest=False)     # not the rest pose: flat fingers
     return q, _rotvec_pose(*_TWO_HAND_WRIST[side])
@@ -511,36 +512,10 @@ def grasp_paths(scene_name: str) -> list[Path]:
                             ("right", "left"))
 
 
-def load_packaged_grasp(scene_name: str, hand=None):
-    """The packaged grasp of a built-in scene, ready to use: :func:`~torchhand.manipulation.load_grasp` of
-    :func:`grasp_path`, with a hand named relative to the shared reference data (``liu-shadow-lift``'s
-    :data:`SHADOW_HAND`) resolved to its file. With ``hand`` (one-hand scenes), also checked against it. A
-    two-hand scene gives a tuple of grasps in its hand order (:func:`grasp_paths`).
-
-    Raises:
-        UnknownNameError: the scene has no packaged grasp; MissingFileError: its hand is not in the shared data;
-        the errors of ``load_grasp``.
-    """
-    from ..manipulation.grasp import check_grasp_hand, load_grasp
-
-    paths = grasp_paths(scene_name)
-    if not paths:
-        raise UnknownNameError(f"scene: no packaged grasp for {scene_name!r}; packaged: {', '.join(LIU_SCENES)}")
-    grasps = []
-    for path in paths:
-        grasp = load_grasp(path)
-        if grasp.hand == SHADOW_HAND:
-            grasp = dataclasses.replace(grasp, hand=str(shadow_hand_path()))
-        if hand is not None and len(paths) == 1:
-            check_grasp_hand(grasp, hand, where=str(path))
-        grasps.append(grasp)
-    return grasps[0] if len(grasps) == 1 else tuple(grasps)
-
-
 def approach_scene(scene: Scene, frames: int = _APPROACH + 4) -> Scene:
     """The approach onto ``scene``'s grasp, ``frames`` frames (>= 11): the object at rest at ``scene``'s frame-0 pose,
     the wrist moving 6 cm along the palm normal onto the scene's frame-0 hand pose over the first 10 frames and
-    holding it after (the approach of :mod:`torchhand.scenes.builtin`); no external wrench. Its ``torchhand
+    holding it after (the approach of :mod:`torchhand.scene.builtin.ye_liu`); no external wrench. Its ``torchhand
     synthesize`` result is the source of the packaged grasps (``scripts/make_liu_grasps.py``).
 
     Raises:

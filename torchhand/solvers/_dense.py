@@ -55,9 +55,9 @@ from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 
 import torch
 
-from .errors import InputValueError, ShapeError
-from .kernels.convex_qp import ConvexQPResult, qp_tolerances, solve_convex_qp
-from .kernels.status import SolverStatus
+from ..errors import InputValueError, ShapeError
+from ..kernels.convex_qp import ConvexQPResult, qp_tolerances, solve_convex_qp
+from ..kernels.status import SolverStatus
 
 __all__ = ["DenseSolution", "converged", "ipm", "polish", "solve_dense", "solve_qp_dense"]
 

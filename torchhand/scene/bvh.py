@@ -17,7 +17,7 @@ Kinematics (what :meth:`BVHClip.global_transforms` computes)
     OFFSET. The rest pose (:meth:`BVHClip.rest_transforms`) has every rotation zero and every position channel at
     its OFFSET. The global transform is ``parent_global @ local``; transforms are 4x4, column-vector convention
     (``p_parent = T_parent_joint @ p_joint``), in the file's units and axes (no unit or up-axis conversion happens
-    here: see :mod:`torchhand.mocap`).
+    here: see :mod:`torchhand.scene.mocap`).
 
 End Sites
     Each ``End Site`` becomes a joint without channels named ``<parent>_end`` (``is_end_site`` True), so
@@ -65,9 +65,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ._atomic import atomic_text
-from .euler import _axis_rotation, euler_to_matrix, matrix_to_euler, unwrap_euler  # noqa: F401 (re-exported)
-from .errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
+from .._atomic import atomic_text
+from ..geometry.euler import _axis_rotation, euler_to_matrix, matrix_to_euler, unwrap_euler  # noqa: F401 (re-exported)
+from ..errors import (FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError,
                      UnknownNameError)
 
 __all__ = ["BVHClip", "read_bvh", "write_bvh", "euler_to_matrix", "matrix_to_euler", "unwrap_euler",

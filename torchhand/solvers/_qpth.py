@@ -74,8 +74,8 @@ from types import MappingProxyType
 import torch
 from qpth.solvers.pdipm import batch as _pdipm
 
-from .errors import InputTypeError, InputValueError, ShapeError
-from .kernels.status import SolverStatus
+from ..errors import InputTypeError, InputValueError, ShapeError
+from ..kernels.status import SolverStatus
 
 __all__ = ["QPResult", "FeasibilityResult", "QP_TOLERANCES", "solve_qp", "lp_feasible"]
 
@@ -607,7 +607,7 @@ def _solve_qp_admm(Q, p, G, h, A, b, *, ridge: float, tol: float | None) -> QPRe
     kernel's certificate (lam >= 0, G^T lam + A^T nu ~ 0, h^T lam + b^T nu < 0) and z its last iterate. Results
     are detached (the ADMM path is not differentiable); ``iterations`` counts ADMM iterations.
     """
-    from .kernels.convex_qp import solve_convex_qp
+    from ..kernels.convex_qp import solve_convex_qp
 
     Q, p, G, h, A, b, finite = _prepare(Q, p, G, h, A, b, ridge, qpth=False)
     B, nz = p.shape
@@ -652,7 +652,7 @@ def _lp_feasible_admm(Gn, hn, An, bn, finite, tol: float, dt) -> FeasibilityResu
 
     ``z`` is the kernel's last iterate (not the least-violation point of the qpth method).
     """
-    from .kernels.convex_qp import qp_tolerances, solve_convex_qp
+    from ..kernels.convex_qp import qp_tolerances, solve_convex_qp
 
     B, nineq, nz = Gn.shape
     f64, dev = Gn.dtype, Gn.device

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MissingFileError
+from ..errors import MissingFileError
 
 
 def solutions_digest(result_dir) -> str:

@@ -14,7 +14,7 @@ How a grid is built (:meth:`SDFGrid.from_mesh`)
     Exact point-triangle distances for the magnitude, the generalized winding number (Barnes-Hut tree) for the
     sign, so open scans keep a sign and meshes too open to have an inside are refused; grids are cached on disk
     keyed by the mesh content hash, voxel size, padding and :data:`BUILD_VERSION`. The machinery, and
-    :func:`inside_report` / :func:`winding_number` (re-exported here), live in :mod:`torchhand.sdf_build`.
+    :func:`inside_report` / :func:`winding_number` (re-exported here), live in :mod:`torchhand.geometry._sdf_build`.
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ import numpy as np
 import torch
 import trimesh
 
-from ._tree import tree_to
-from .conventions import check_finite, check_tensor
-from .errors import InputTypeError, InputValueError, ShapeError
-from .kernels.sdf import _sdf_impl, pack_corners, sdf_trilinear, sdf_trilinear_with_grad
+from .._tree import tree_to
+from ..conventions import check_finite, check_tensor
+from ..errors import InputTypeError, InputValueError, ShapeError
+from ..kernels.sdf import _sdf_impl, pack_corners, sdf_trilinear, sdf_trilinear_with_grad
 # The builder's helpers are looked up in this module's namespace by SDFGrid.from_mesh (tests patch them here).
-from .sdf_build import (
+from ._sdf_build import (
     BUILD_VERSION,
     InsideReport,
     _build_values,
@@ -108,7 +108,7 @@ class SDFGrid:
         """Build (or load from the disk cache) the SDF grid of ``mesh``.
 
         Args:
-            mesh: triangle mesh, mesh frame, metres; need not be watertight (see :mod:`torchhand.sdf_build`).
+            mesh: triangle mesh, mesh frame, metres; need not be watertight (see :mod:`torchhand.geometry._sdf_build`).
             voxel_size: node spacing, metres (e.g. 0.002).
             padding: margin around the mesh's bounding box, metres; default ``max(0.15 * largest extent,
                 6 * voxel_size)``. The grid box is then rounded up so that each axis has 8 m + 1 nodes.

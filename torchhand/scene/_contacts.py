@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 if TYPE_CHECKING:
-    from .scene import Scene
+    from ._model import Scene
 
 __all__ = ["EnvContacts", "environment_contacts"]
 
@@ -59,7 +59,7 @@ def environment_contacts(scene: Scene, tol: float = 0.003, static_speed: float =
     Returns:
         the padded contacts, E = the largest contact count over the frames.
     """
-    from .scene import _check_number  # lazy: torchhand.scene re-exports this module's names
+    from ._parts import _check_number
 
     tol = _check_number(tol, "tol", low=0.0)
     static_speed = _check_number(static_speed, "static_speed", low=0.0)

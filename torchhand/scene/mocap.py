@@ -45,9 +45,10 @@ import numpy as np
 import torch
 
 from .bvh import BVHClip, read_bvh
-from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError
-from .objects import RigidObject, load_object
-from .scene import SIDES, Environment, HandTrack, MocapSource, Scene
+from ..errors import FileFormatError, InputValueError, MissingFileError, ShapeError
+from ..geometry.objects import RigidObject, load_object
+from ._model import Scene
+from ._parts import SIDES, Environment, HandTrack, MocapSource
 
 __all__ = ["import_mocap_scene", "manipnet_scene", "hand_frame_rotation", "convert_transforms"]
 

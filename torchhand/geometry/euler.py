@@ -10,7 +10,7 @@ import math
 
 import torch
 
-from .errors import InputTypeError, InputValueError, ShapeError
+from ..errors import InputTypeError, InputValueError, ShapeError
 
 __all__ = ["euler_to_matrix", "matrix_to_euler", "unwrap_euler"]
 

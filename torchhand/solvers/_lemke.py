@@ -19,7 +19,7 @@ Termination is reported honestly:
   (numerical breakdown on a badly conditioned problem).
 - INVALID_INPUT: NaN/inf in M or q (nothing was solved).
 
-Used by the tests as a reference and by :func:`torchhand.lcp.solve_lcp` as an exact fallback for small problems
+Used by the tests as a reference and by :func:`torchhand.solvers.lcp.solve_lcp` as an exact fallback for small problems
 that projected Gauss-Seidel cannot finish. Cost: O(n^2) per pivot, in the worst case exponentially many pivots
 (Murty's example), typically O(n) pivots.
 """
@@ -30,8 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import InputTypeError, InputValueError, ShapeError
-from .kernels.status import SolverStatus
+from ..errors import InputTypeError, InputValueError, ShapeError
+from ..kernels.status import SolverStatus
 
 __all__ = ["LemkeResult", "lemke"]
 

@@ -15,7 +15,6 @@ Open meshes
 
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,14 @@ import numpy as np
 import torch
 import trimesh
 
-from .errors import FileFormatError, InputTypeError, InputValueError, MeshError, MissingFileError
+from ..errors import (
+    FileFormatError,
+    InputTypeError,
+    InputValueError,
+    MeshError,
+    MissingFileError,
+)
+from ._sdf_build import mesh_content_hash
 
 __all__ = [
     "DEFAULT_DENSITY",
@@ -89,7 +95,7 @@ class RigidObject:
         Mass properties:
             * watertight mesh: exact volume integrals of the mesh (trimesh), with ``density`` or scaled to ``mass``.
             * open mesh whose generalized winding number still has a robust inside (see
-              :func:`torchhand.sdf.inside_report`): mass properties are taken from the mesh's **convex hull**
+              :func:`torchhand.geometry.sdf.inside_report`): mass properties are taken from the mesh's **convex hull**
               (an approximation: it over-estimates the volume of concave objects such as a mug, so prefer giving
               ``mass``; the centre of mass and inertia are then those of the hull). ``watertight`` is False.
             * open mesh too open to have an inside: :class:`MeshError` suggesting ``repair=True``.
@@ -118,7 +124,9 @@ class RigidObject:
             inverted = work.volume < 0  # inward-facing normals
             source = work
         else:
-            from .sdf import inside_report  # lazy: keeps `import torchhand.objects` light
+            from .sdf import (
+                inside_report,  # lazy: keeps `import torchhand.geometry.objects` light
+            )
 
             report = inside_report(work)
             if not report.robust:
@@ -149,14 +157,6 @@ class RigidObject:
     def content_hash(self) -> str:
         """sha256 hex digest of the mesh's vertices (float64) and faces (int64) bytes."""
         return mesh_content_hash(self.mesh)
-
-
-def mesh_content_hash(mesh: trimesh.Trimesh) -> str:
-    """sha256 hex digest of ``mesh``'s vertices (float64, C order) and faces (int64, C order) bytes."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
-    return h.hexdigest()
 
 
 def load_object(

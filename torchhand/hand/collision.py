@@ -1,7 +1,7 @@
 """Hand–object penetration and finger–finger interpenetration for a batch of hand poses.
 
 Thin typed wrappers over :mod:`torchhand.kernels.penetration`: they take a :class:`~torchhand.hand.HandModel`, the
-link poses from its forward kinematics, an object's :class:`~torchhand.sdf.SDFGrid` and the object's world pose.
+link poses from its forward kinematics, an object's :class:`~torchhand.geometry.sdf.SDFGrid` and the object's world pose.
 Conventions: metres; SDF negative inside; link and object poses are world ``(B, 4, 4)`` transforms.
 """
 
@@ -11,9 +11,9 @@ import torch
 
 from torchhand.kernels.penetration import PenetrationResult, capsule_interpenetration, link_sample_penetration
 
-from .conventions import check_tensor
-from .hand.model import HandModel
-from .sdf import SDFGrid
+from ..conventions import check_tensor
+from .model import HandModel
+from ..geometry.sdf import SDFGrid
 
 __all__ = ["PenetrationResult", "hand_object_penetration", "finger_interpenetration", "rigid_inverse"]
 

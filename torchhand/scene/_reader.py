@@ -1,17 +1,13 @@
-"""Scene directories (``docs/scene_format.md``): reading ``scene.toml`` + mesh + ``trajectories.npz``, and the
-atomic export.
+"""Reading a scene directory (``docs/scene_format.md``): ``scene.toml`` + mesh + ``trajectories.npz``, validated.
 
-:func:`load_scene_dir` backs :func:`torchhand.scene.load_scene` for paths; :func:`export_scene_dir` backs
-:meth:`torchhand.scene.Scene.export`. Conventions (see :mod:`torchhand.conventions`): world z-up, metres, seconds,
-kilograms; poses are 4x4 rigid transforms ``T_world_frame``, float64.
+:func:`load_scene_dir` backs :func:`torchhand.scene.load_scene` for paths. Conventions (see
+:mod:`torchhand.conventions`): world z-up, metres, seconds, kilograms; poses are 4x4 rigid transforms
+``T_world_frame``, float64.
 """
 
 from __future__ import annotations
 
 import math
-import os
-import shutil
-import tempfile
 import tomllib
 import zipfile
 from pathlib import Path
@@ -19,128 +15,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .conventions import check_transforms
-from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError
-from .objects import load_object
-from .scene import DEFAULT_GRAVITY, FORMAT_VERSION, SIDES, Environment, HandTrack, MocapSource, Scene
+from ..conventions import check_transforms
+from ..errors import FileFormatError, InputValueError, MissingFileError, ShapeError, TorchhandError
+from ..geometry.objects import load_object
+from ._model import Scene
+from ._parts import DEFAULT_GRAVITY, SIDES, Environment, HandTrack, MocapSource
+from ._writer import _EXTERNAL, _SCENE_TOML, _TRAJ_FILE
 
-__all__ = ["load_scene_dir", "export_scene_dir"]
-
-_SCENE_TOML = "scene.toml"
-_MESH_FILE = "object.obj"
-_TRAJ_FILE = "trajectories.npz"
-_EXTERNAL = "external_wrench"   # the optional (T, 6) array in the trajectories npz and its [scene] flag
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# export
-
-
-def export_scene_dir(scene: Scene, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write ``scene`` as a scene directory and return its path (see :meth:`torchhand.scene.Scene.export`)."""
-    target = Path(directory)
-    if target.exists() and not target.is_dir():
-        raise InputValueError(f"directory: '{target}' exists and is not a directory")
-    names = (_MESH_FILE, _TRAJ_FILE) + tuple(n for t in scene.hands if t.model != "default"
-                                              for n in _hand_files(t)) + (_SCENE_TOML,)
-    if not overwrite:
-        clash = [n for n in names if (target / n).exists()]
-        if clash:
-            raise InputValueError(
-                f"directory: '{target}' already holds {', '.join(clash)}; pass overwrite=True "
-                "(CLI: --overwrite) to replace them"
-            )
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
-    except OSError as err:
-        raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
-    try:
-        _write_files(scene, tmp)
-        target.mkdir(exist_ok=True)
-        for n in names:  # scene.toml last: a reader never sees it before the files it names
-            os.replace(tmp / n, target / n)
-    except OSError as err:
-        raise InputValueError(f"directory: cannot write a scene into '{target}': {err}") from err
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return target
-
-
-def _write_files(scene: Scene, out: Path) -> None:
-    import tomli_w
-    import trimesh
-
-    mesh = scene.object.mesh
-    text = trimesh.exchange.obj.export_obj(mesh, include_normals=False, include_color=False,
-                                           include_texture=False, digits=12)
-    (out / _MESH_FILE).write_text(text, encoding="utf-8")
-    arrays = {"object_pose": scene.object_pose.detach().cpu().to(torch.float64).numpy()}
-    for h in scene.hands:
-        arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
-    if scene.external_wrench is not None:
-        arrays[_EXTERNAL] = scene.external_wrench.detach().cpu().to(torch.float64).numpy()
-    with open(out / _TRAJ_FILE, "wb") as f:
-        np.savez(f, **arrays)
-    doc = {
-        "format_version": FORMAT_VERSION,
-        "scene": {
-            "name": scene.name,
-            "description": scene.description,
-            "fps": float(scene.fps),
-            "friction": float(scene.friction),
-            "gravity": [float(v) for v in scene.gravity.tolist()],
-            "trajectories": _TRAJ_FILE,
-        } | ({_EXTERNAL: True} if scene.external_wrench is not None else {}),
-        "object": {"name": scene.object.name, "mesh": _MESH_FILE, "mass": float(scene.object.mass),
-                   "scale": 1.0},
-        "environment": {"table": bool(scene.environment.table),
-                        "table_height": float(scene.environment.table_height),
-                        "friction": float(scene.environment.friction)},
-    }
-    if scene.source is not None:
-        doc["source"] = _source_doc(scene.source)
-    text = tomli_w.dumps(doc)
-    for h in sorted(scene.hands, key=lambda h: SIDES.index(h.side)):  # written as [[hands]] tables
-        entry = {"side": h.side, "length": float(h.length)}
-        if h.model != "default":
-            entry["model"] = _write_hand(h, out)
-        text += "\n[[hands]]\n" + tomli_w.dumps(entry)
-    (out / _SCENE_TOML).write_text(text, encoding="utf-8")
-
-
-def _hand_files(track: HandTrack) -> tuple[str, ...]:
-    """Files a scene directory holds for an MJCF hand: the model (meshes inline) and its sidecar, if any."""
-    from .hand.mount import sidecar_path
-
-    xml = f"hand_{track.side}.xml"
-    return (xml, sidecar_path(xml).name) if sidecar_path(track.model).is_file() else (xml,)
-
-
-def _write_hand(track: HandTrack, out: Path) -> str:
-    """Write an MJCF hand into the scene directory, self-contained (meshes inline), with its sidecar."""
-    from .hand.mjcf import load_mjcf, save_mjcf
-    from .hand.mount import sidecar_path
-
-    files = _hand_files(track)
-    save_mjcf(load_mjcf(track.model, side=track.side), out / files[0])
-    if len(files) > 1:
-        shutil.copyfile(sidecar_path(track.model), out / files[1])
-    return files[0]
-
-
-def _source_doc(src: MocapSource) -> dict:
-    rot = dict(src.hand_rotation)
-    return {"kind": src.kind, "fps": float(src.fps), "frames": int(src.frames),
-            "first_frame": float(src.first_frame), "units_scale": float(src.units_scale), "up_axis": src.up_axis,
-            "handedness": src.handedness,
-            "wrists": [{"side": side, "file": file, "joint": joint}
-                       | ({"rotation": [list(r) for r in rot[side]]} if side in rot else {})
-                       for side, file, joint in src.wrists]}
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# loading
+__all__ = ["load_scene_dir"]
 
 
 _SCHEMA = {

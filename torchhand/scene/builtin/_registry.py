@@ -1,24 +1,13 @@
-"""Built-in procedural scenes, registered by name.
-
-Each built-in scene is made deterministically from code (no files, no randomness): the object mesh from trimesh
-primitives, the object and wrist trajectories from smooth closed-form profiles. They follow the examples of Ye & Liu
-(2012): turning and lifting a box on a table, turning a small bottle, a mug, and a two-hand box lift.
-See :mod:`torchhand.scenes.builtin` for what each one contains. The ``liu-*`` scenes
-(:mod:`torchhand.scenes.liu`) follow the examples of Liu (2009) and each ships the grasp that ``torchhand
-manipulate`` starts from (:func:`torchhand.scenes.liu.grasp_path`).
-
-    >>> from torchhand.scenes import list_builtin_scenes, builtin_scene
-    >>> scene = builtin_scene("box-turn")
-"""
+"""The registry of built-in scenes: zero-argument builders by name."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
 
-from ..errors import InputTypeError, UnknownNameError
+from ...errors import InputTypeError, UnknownNameError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..scene import Scene
+    from .._model import Scene
 
 __all__ = ["register_scene", "list_builtin_scenes", "builtin_scene", "builtin_scene_description"]
 
@@ -59,7 +48,3 @@ def builtin_scene(name: str) -> "Scene":
 def builtin_scene_description(name: str) -> str:
     """One-line description of the built-in scene ``name``."""
     return _lookup(name)[1]
-
-
-from . import builtin  # noqa: E402,F401  (registers the scenes)
-from . import liu  # noqa: E402,F401  (registers the Liu 2009 scenes)

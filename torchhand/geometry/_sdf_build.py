@@ -1,7 +1,7 @@
 """Building signed distance grids from triangle meshes: winding numbers, unsigned distances, layout, disk cache.
 
-The grid type and its queries live in :mod:`torchhand.sdf` (:class:`~torchhand.sdf.SDFGrid`); this module is the
-machinery behind :meth:`SDFGrid.from_mesh <torchhand.sdf.SDFGrid.from_mesh>`. Conventions (see
+The grid type and its queries live in :mod:`torchhand.geometry.sdf` (:class:`~torchhand.geometry.sdf.SDFGrid`); this module is the
+machinery behind :meth:`SDFGrid.from_mesh <torchhand.geometry.sdf.SDFGrid.from_mesh>`. Conventions (see
 :mod:`torchhand.conventions`): metres; the SDF is NEGATIVE INSIDE the object and positive outside; points are given
 in the mesh (object) frame.
 
@@ -21,7 +21,7 @@ How a grid is built
     * a build (and :func:`winding_number`) runs torch single-threaded and restores the thread count afterwards:
       it is thousands of small operations that intra-op threads do not speed up and that stall on a shared CPU.
 
-This module does not import :mod:`torchhand.sdf` (which imports it), so there is no import cycle.
+This module does not import :mod:`torchhand.geometry.sdf` (which imports it), so there is no import cycle.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ import numpy as np
 import torch
 import trimesh
 
-from .errors import InputTypeError, InputValueError, MeshError
+from ..errors import InputTypeError, InputValueError, MeshError
 
 __all__ = [
     "InsideReport",
@@ -90,7 +90,7 @@ def inside_report(mesh: trimesh.Trimesh, *, resolution: int = 16) -> InsideRepor
     with inward normals). The mesh is robust when some probe is inside and at most 25 % of the inside-or-ambiguous
     probes are ambiguous: small holes and seams pass (the Stanford bunny: 0.1 %, the bigym mug: 2 %); single
     sheets, triangle soups and zero-thickness shells do not (trimesh's soup.stl: 62 %). :meth:`SDFGrid.from_mesh`
-    and :meth:`torchhand.objects.RigidObject.from_trimesh` both use this test.
+    and :meth:`torchhand.geometry.objects.RigidObject.from_trimesh` both use this test.
     """
     vertices, faces = _clean_arrays(mesh)
     lo, hi = vertices.min(0), vertices.max(0)
@@ -390,7 +390,7 @@ def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> np.nd
     report = inside_report(trimesh.Trimesh(vertices, faces, process=False))  # the same test as RigidObject's
     if not report.robust:
         raise MeshError(f"mesh is too open to have an inside ({report.message}); repair it first "
-                        "(torchhand.objects.repair_mesh or load_object(..., repair=True))")
+                        "(torchhand.geometry.objects.repair_mesh or load_object(..., repair=True))")
     centre = 0.5 * (vertices.min(0) + vertices.max(0))  # float32 work relative to the mesh centre
     tri = torch.as_tensor(vertices[faces] - centre, dtype=torch.float32)
     org = torch.as_tensor(origin - centre, dtype=torch.float32)
@@ -464,10 +464,16 @@ def _clean_arrays(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     return v, f[keep]
 
 
+def mesh_content_hash(mesh: trimesh.Trimesh) -> str:
+    """sha256 hex digest of ``mesh``'s vertices (float64, C order) and faces (int64, C order) bytes."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
 def _cache_path(mesh: trimesh.Trimesh, voxel_size: float, padding: float, cache_dir) -> Path:
     """Cache file of the grid of ``mesh`` at ``voxel_size`` and ``padding`` (metres), in ``cache_dir`` or the default."""
-    from .objects import mesh_content_hash  # lazy: importing torchhand.sdf does not load objects
-
     key = hashlib.sha256(
         f"{mesh_content_hash(mesh)}|{voxel_size!r}|{padding!r}|{BUILD_VERSION}".encode()
     ).hexdigest()[:32]

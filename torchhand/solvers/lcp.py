@@ -4,7 +4,7 @@
 validates at the boundary (raising :class:`~torchhand.errors.TorchhandError` subclasses), runs the batched
 projected Gauss-Seidel kernel :func:`torchhand.kernels.lcp.solve_lcp_pgs`, and hands the small problems PGS could
 not finish (MAX_ITERATIONS, a diverged iterate, or a zero/negative diagonal PGS cannot divide by) to Lemke's method
-(:func:`torchhand.lemke.lemke`, CPU float64), which either solves them exactly or reports ray termination
+(:func:`torchhand.solvers._lemke.lemke`, CPU float64), which either solves them exactly or reports ray termination
 (UNBOUNDED). :func:`random_lcp` builds the seeded test and benchmark problems; :func:`read_siconos_lcp` reads the
 Siconos LCP test files.
 """
@@ -18,11 +18,11 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from .conventions import check_tensor
-from .errors import FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError
-from .kernels.lcp import LCPResult, lcp_residual, lcp_tolerances, solve_lcp_pgs
-from .kernels.status import SolverStatus
-from .lemke import lemke
+from ..conventions import check_tensor
+from ..errors import FileFormatError, InputTypeError, InputValueError, MissingFileError, ShapeError
+from ..kernels.lcp import LCPResult, lcp_residual, lcp_tolerances, solve_lcp_pgs
+from ..kernels.status import SolverStatus
+from ._lemke import lemke
 
 __all__ = ["LCPSolution", "LCPProblem", "solve_lcp", "random_lcp", "read_siconos_lcp"]
 

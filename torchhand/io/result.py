@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import FileFormatError, InputValueError, MissingFileError, ShapeError, UnknownNameError
+from ..errors import FileFormatError, InputValueError, MissingFileError, ShapeError, UnknownNameError
 
 if TYPE_CHECKING:
-    from .scene import Scene
+    from ..scene import Scene
 
 __all__ = [
     "FORMAT_VERSION",
@@ -268,8 +268,8 @@ def load_result(path) -> Result:
         FileFormatError: ``stats.json`` or a hand file cannot be parsed, a ``stats.json`` key has the wrong type,
             or ``format_version`` is newer than :data:`FORMAT_VERSION`.
     """
-    from .hand import HandModel, default_hand
-    from .scene import load_scene
+    from ..hand import HandModel, default_hand
+    from ..scene import load_scene
 
     root = Path(path)
     if not root.is_dir():
