@@ -145,10 +145,12 @@ def run(out: Path, only: str | None) -> int:
     return 0
 
 
-def compare(a: Path, b: Path) -> int:
+def compare(a: Path, b: Path, only: str | None = None) -> int:
     da, db = json.loads(a.read_text()), json.loads(b.read_text())
     bad = 0
     for job in sorted(set(da) | set(db)):
+        if only and not re.search(only, job):
+            continue
         if job not in da or job not in db:
             print(f"{job}: only in {'A' if job in da else 'B'}")
             bad += 1
@@ -170,8 +172,9 @@ def main(argv=None) -> int:
     c = sub.add_parser("compare")
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
+    c.add_argument("--only", help="compare only the jobs whose name matches this regular expression")
     args = ap.parse_args(argv)
-    return run(args.out, args.only) if args.cmd == "run" else compare(args.a, args.b)
+    return run(args.out, args.only) if args.cmd == "run" else compare(args.a, args.b, args.only)
 
 
 if __name__ == "__main__":
