@@ -23,6 +23,26 @@ ROOT = Path(__file__).resolve().parents[1]
 # import name -> directory, as pyproject.toml's package-dir says
 PACKAGE_DIRS = {"torchhand": ROOT / "torchhand", "torchhand.kernels": ROOT / "kernels",
                 "torchhand.render": ROOT / "render"}
+# The layers, bottom to top (docs/architecture.md). A module may import modules of a lower layer and of its own
+# unit (an entry of the table: a package or a module), nothing else: not a higher layer, not another unit of its
+# own layer (peers stay independent). ``torchhand`` itself is the public facade: it imports only errors at import
+# time and resolves the rest lazily by name.
+LAYERS = [
+    ("errors", ["torchhand.errors"]),
+    ("foundation", ["torchhand", "torchhand.conventions", "torchhand._tree", "torchhand._atomic", "torchhand._npz",
+                    "torchhand._numerics"]),
+    ("kernels", ["torchhand.kernels"]),
+    ("solvers and geometry", ["torchhand.solvers", "torchhand.geometry"]),
+    ("hand", ["torchhand.hand"]),
+    ("scene", ["torchhand.scene"]),
+    ("result files", ["torchhand.io"]),
+    ("checker", ["torchhand.check"]),
+    ("synthesis", ["torchhand.synthesis"]),
+    ("methods", ["torchhand.interaction", "torchhand.manipulation", "torchhand.splice"]),
+    ("export and render", ["torchhand.export", "torchhand.render"]),
+    ("batch", ["torchhand.batch"]),
+    ("cli", ["torchhand.cli"]),
+]
 MODULE_LINES = 500
 FUNCTION_LINES = 100
 EXCEPTION_MARK = "# long function:"
@@ -180,6 +200,35 @@ def circles(modules: dict[str, Module]) -> list[list[str]]:
     return sorted(out)
 
 
+def unit_of(name: str) -> tuple[int, str] | None:
+    """(layer index, unit) of module ``name``: the longest entry of :data:`LAYERS` that is it or contains it."""
+    best = None
+    for i, (_, units) in enumerate(LAYERS):
+        for u in units:
+            if (name == u or name.startswith(u + ".")) and (best is None or len(u) > len(best[1])):
+                best = (i, u)
+    if best and best[1] == "torchhand" and name != "torchhand":
+        return None          # a top-level module missing from the table
+    return best
+
+
+def layer_violations(modules: dict[str, Module]) -> list[str]:
+    """Imports that do not go downward, and modules that belong to no layer."""
+    out = []
+    for m in sorted(modules.values(), key=lambda m: m.name):
+        here = unit_of(m.name)
+        if here is None:
+            out.append(f"{m.name}: in no layer of scripts/architecture.py LAYERS")
+            continue
+        for t in sorted(m.imports):
+            there = unit_of(t)
+            if there is None or there[1] == here[1] or there[0] < here[0]:
+                continue
+            what = "a peer" if there[0] == here[0] else "a higher layer"
+            out.append(f"{m.name} imports {t} ({what}: {LAYERS[there[0]][0]})")
+    return out
+
+
 def figures(modules: dict[str, Module]) -> dict:
     funcs = [(f"{m.name}.{q}", n) for m in modules.values() for q, _, n in m.functions]
     excepted = {f"{m.name}.{q}": r for m in modules.values() for q, r in m.exceptions.items()
@@ -190,6 +239,7 @@ def figures(modules: dict[str, Module]) -> dict:
         "modules": len(modules),
         "lines": sum(m.lines for m in modules.values()),
         "circles": circles(modules),
+        "layer_violations": layer_violations(modules),
         "largest_module": mods[0],
         "modules_over_limit": [x for x in mods if x[1] > MODULE_LINES],
         "largest_function": funcs[0],
@@ -210,6 +260,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"import circles: {len(fig['circles'])}")
     for c in fig["circles"]:
         print("  " + " <-> ".join(c))
+    print(f"imports that do not go downward: {len(fig['layer_violations'])}")
+    for v in fig["layer_violations"]:
+        print("  " + v)
     print(f"largest module: {fig['largest_module'][0]} ({fig['largest_module'][1]} lines)")
     print(f"modules over {MODULE_LINES} lines: {len(fig['modules_over_limit'])}")
     for n, k in fig["modules_over_limit"]:
