@@ -214,6 +214,8 @@ class _Work(NamedTuple):
     dist_it: torch.Tensor      # (B,) iteration of the last distance (certificate) polish
 
 
+# long function: one ADMM loop whose iterate, penalty, active-set memory, per-problem freezing and convergence
+# checks share the working set that shrinks as problems finish; split, every stage would pass it all back
 def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
          decided: torch.Tensor | None = None, check_first: bool = False) -> AdmmOutput:
     """Run the batched solver from the governing points w0 (B, n) on every problem of ``prob`` not ``decided``

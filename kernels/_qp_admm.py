@@ -272,6 +272,8 @@ def _unbounded(P: _Scaled, dx: torch.Tensor, eps: float):
     return (norm > 0) & (_amax(_mv(P.Q, dx)) <= eps * norm) & ((P.q * dx).sum(-1) <= -eps * norm) & in_rec.all(-1)
 
 
+# long function: one ADMM loop whose iterate, duals, penalty updates, infeasibility certificates and the shrinking
+# set of unfinished problems share state across every iteration; split, each stage would pass it all back
 def admm(Q, q, C, l, u, x0, y0, s: AdmmSettings) -> AdmmOutput:
     """Solve the B problems (see the module docstring) from the unscaled warm start (x0 (B, n), y0 (B, m))."""
     B, n = q.shape

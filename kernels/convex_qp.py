@@ -288,6 +288,74 @@ def _solve(Q, q, C, lo, up, nineq: int, x0, y0, s: AdmmSettings, warm: bool, fal
     return AdmmOutput(x=x_all, y=y_all, status=status, iterations=iters)
 
 
+def _check_settings(method, check_every, rho, sigma, alpha) -> None:
+    """The solver settings of :func:`solve_convex_qp`; ``ValueError`` naming the bad one."""
+    if method not in ("auto", "ipm", "admm"):
+        raise ValueError(f"solve_convex_qp: method must be 'auto', 'ipm' or 'admm', got {method!r}")
+    if check_every < 1:
+        raise ValueError(f"solve_convex_qp: check_every must be >= 1, got {check_every}")
+    if not (rho > 0 and sigma > 0 and 0 < alpha < 2):
+        raise ValueError(f"solve_convex_qp: need rho > 0, sigma > 0, 0 < alpha < 2, got {rho}, {sigma}, {alpha}")
+
+
+def _warm_start(warm_start, p, B, nz, nineq, neq, dt, dev):
+    """The starting point (z, lam, nu) of :func:`solve_convex_qp`: zeros, or the checked parts of ``warm_start``."""
+    z0, lam0, nu0 = p.new_zeros(B, nz), p.new_zeros(B, nineq), p.new_zeros(B, neq)
+    if warm_start is not None:
+        if not isinstance(warm_start, (tuple, list)) or len(warm_start) != 3:
+            raise ValueError("solve_convex_qp: warm_start must be a tuple (z, lam or None, nu or None)")
+        _check(warm_start[0], "warm_start z", (B, nz), dt, dev)
+        z0 = warm_start[0]
+        if warm_start[1] is not None:
+            _check(warm_start[1], "warm_start lam", (B, nineq), dt, dev)
+            lam0 = warm_start[1]
+        if warm_start[2] is not None:
+            _check(warm_start[2], "warm_start nu", (B, neq), dt, dev)
+            nu0 = warm_start[2]
+    return z0, lam0, nu0
+
+
+def _with_residuals(p, Qc, pc, Gc, hc, Ac, bc, z, lam, nu, status, iters, finite, has_sol, nineq, neq, dt_in):
+    """The result with its residuals and objective measured on the original rows, in the input dtype."""
+    B, dt, dev = pc.shape[0], pc.dtype, pc.device
+    inf = torch.full((), float("inf"), dtype=dt, device=dev)
+    mv = lambda M, v: (M @ v.unsqueeze(-1)).squeeze(-1)  # noqa: E731
+    r_g = (mv(Gc, z) - hc).clamp_min(0).amax(1) if nineq else p.new_zeros(B)
+    r_a = (mv(Ac, z) - bc).abs().amax(1) if neq else p.new_zeros(B)
+    r_p = torch.where(finite, torch.maximum(r_g, r_a), inf)
+    grad = mv(Qc, z) + pc + mv(Gc.transpose(1, 2), lam) + mv(Ac.transpose(1, 2), nu)
+    r_d = torch.where(has_sol, grad.abs().amax(1), inf)
+    obj = 0.5 * (z * mv(Qc, z)).sum(1) + (pc * z).sum(1)
+    obj = torch.where(has_sol, obj, inf)
+    z, lam, nu, obj, r_p, r_d = (t.to(dt_in) for t in (z, lam, nu, obj, r_p, r_d))
+    return ConvexQPResult(z=z, lam=lam, nu=nu, objective=obj, status=status, iterations=iters,
+                          residual_primal=r_p, residual_dual=r_d)
+
+
+def _checked_data(Q, p, G, h, A, b):
+    """The problem data of :func:`solve_convex_qp` checked (``ValueError`` naming the argument), absent rows as
+    empty tensors. Returns G, h, A, b, nineq, neq."""
+    if not isinstance(p, torch.Tensor) or p.dim() != 2:
+        raise ValueError(f"solve_convex_qp: p must be a tensor of shape (B, nz), got "
+                         f"{tuple(p.shape) if isinstance(p, torch.Tensor) else type(p).__name__}")
+    B, nz = p.shape
+    dt, dev = p.dtype, p.device
+    if (G is None) != (h is None):
+        raise ValueError("solve_convex_qp: give both G and h or neither")
+    if (A is None) != (b is None):
+        raise ValueError("solve_convex_qp: give both A and b or neither")
+    _check(Q, "Q", (B, nz, nz), dt, dev)
+    nineq, neq = _rows(G, "G", B, nz), _rows(A, "A", B, nz)
+    G = p.new_zeros(B, 0, nz) if G is None else G
+    h = p.new_zeros(B, 0) if h is None else h
+    A = p.new_zeros(B, 0, nz) if A is None else A
+    b = p.new_zeros(B, 0) if b is None else b
+    for x, name, shape in ((G, "G", (B, nineq, nz)), (h, "h", (B, nineq)), (A, "A", (B, neq, nz)),
+                           (b, "b", (B, neq))):
+        _check(x, name, shape, dt, dev)
+    return G, h, A, b, nineq, neq
+
+
 def solve_convex_qp(Q: torch.Tensor, p: torch.Tensor, G: torch.Tensor | None = None, h: torch.Tensor | None = None,
                     A: torch.Tensor | None = None, b: torch.Tensor | None = None, *,
                     warm_start: tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None] | None = None,
@@ -321,43 +389,12 @@ def solve_convex_qp(Q: torch.Tensor, p: torch.Tensor, G: torch.Tensor | None = N
     Returns:
         :class:`ConvexQPResult` with leading B.
     """
-    if not isinstance(p, torch.Tensor) or p.dim() != 2:
-        raise ValueError(f"solve_convex_qp: p must be a tensor of shape (B, nz), got "
-                         f"{tuple(p.shape) if isinstance(p, torch.Tensor) else type(p).__name__}")
+    G, h, A, b, nineq, neq = _checked_data(Q, p, G, h, A, b)
     tols = qp_tolerances(p.dtype)
     B, nz = p.shape
     dt, dev = p.dtype, p.device
-    if (G is None) != (h is None):
-        raise ValueError("solve_convex_qp: give both G and h or neither")
-    if (A is None) != (b is None):
-        raise ValueError("solve_convex_qp: give both A and b or neither")
-    _check(Q, "Q", (B, nz, nz), dt, dev)
-    nineq, neq = _rows(G, "G", B, nz), _rows(A, "A", B, nz)
-    G = p.new_zeros(B, 0, nz) if G is None else G
-    h = p.new_zeros(B, 0) if h is None else h
-    A = p.new_zeros(B, 0, nz) if A is None else A
-    b = p.new_zeros(B, 0) if b is None else b
-    for x, name, shape in ((G, "G", (B, nineq, nz)), (h, "h", (B, nineq)), (A, "A", (B, neq, nz)),
-                           (b, "b", (B, neq))):
-        _check(x, name, shape, dt, dev)
-    if method not in ("auto", "ipm", "admm"):
-        raise ValueError(f"solve_convex_qp: method must be 'auto', 'ipm' or 'admm', got {method!r}")
-    if check_every < 1:
-        raise ValueError(f"solve_convex_qp: check_every must be >= 1, got {check_every}")
-    if not (rho > 0 and sigma > 0 and 0 < alpha < 2):
-        raise ValueError(f"solve_convex_qp: need rho > 0, sigma > 0, 0 < alpha < 2, got {rho}, {sigma}, {alpha}")
-    z0, lam0, nu0 = p.new_zeros(B, nz), p.new_zeros(B, nineq), p.new_zeros(B, neq)
-    if warm_start is not None:
-        if not isinstance(warm_start, (tuple, list)) or len(warm_start) != 3:
-            raise ValueError("solve_convex_qp: warm_start must be a tuple (z, lam or None, nu or None)")
-        _check(warm_start[0], "warm_start z", (B, nz), dt, dev)
-        z0 = warm_start[0]
-        if warm_start[1] is not None:
-            _check(warm_start[1], "warm_start lam", (B, nineq), dt, dev)
-            lam0 = warm_start[1]
-        if warm_start[2] is not None:
-            _check(warm_start[2], "warm_start nu", (B, neq), dt, dev)
-            nu0 = warm_start[2]
+    _check_settings(method, check_every, rho, sigma, alpha)
+    z0, lam0, nu0 = _warm_start(warm_start, p, B, nz, nineq, neq, dt, dev)
 
     # 1. Screening of non-finite data, per problem, without a host sync.
     finite = torch.ones(B, dtype=torch.bool, device=dev)
@@ -417,15 +454,4 @@ def solve_convex_qp(Q: torch.Tensor, p: torch.Tensor, G: torch.Tensor | None = N
     lam = torch.where(has_sol.view(B, 1), lam.clamp_min(0), lam)
     z = torch.where(f2, z, zero)
     lam, nu = torch.where(f2, lam, zero), torch.where(f2, nu, zero)
-    # Residuals and objective with the original rows.
-    mv = lambda M, v: (M @ v.unsqueeze(-1)).squeeze(-1)  # noqa: E731
-    r_g = (mv(Gc, z) - hc).clamp_min(0).amax(1) if nineq else p.new_zeros(B)
-    r_a = (mv(Ac, z) - bc).abs().amax(1) if neq else p.new_zeros(B)
-    r_p = torch.where(finite, torch.maximum(r_g, r_a), inf)
-    grad = mv(Qc, z) + pc + mv(Gc.transpose(1, 2), lam) + mv(Ac.transpose(1, 2), nu)
-    r_d = torch.where(has_sol, grad.abs().amax(1), inf)
-    obj = 0.5 * (z * mv(Qc, z)).sum(1) + (pc * z).sum(1)
-    obj = torch.where(has_sol, obj, inf)
-    z, lam, nu, obj, r_p, r_d = (t.to(dt_in) for t in (z, lam, nu, obj, r_p, r_d))
-    return ConvexQPResult(z=z, lam=lam, nu=nu, objective=obj, status=status, iterations=iters,
-                          residual_primal=r_p, residual_dual=r_d)
+    return _with_residuals(p, Qc, pc, Gc, hc, Ac, bc, z, lam, nu, status, iters, finite, has_sol, nineq, neq, dt_in)

@@ -110,6 +110,77 @@ def _skew(p: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack([o, -z, y], -1), torch.stack([z, o, -x], -1), torch.stack([-y, x, o], -1)], -2)
 
 
+def _check_args(points, normals, mu, wrench, mask, weights, sliding_dir, warm_start, check_every) -> None:
+    """Shapes, dtypes and devices of :func:`solve_friction_cone`'s arguments; ``ValueError`` naming the argument."""
+    if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[-1] != 3:
+        raise ValueError("solve_friction_cone: points must have shape (B, K, 3), got "
+                         f"{tuple(points.shape) if isinstance(points, torch.Tensor) else type(points).__name__}")
+    B, K, _ = points.shape
+    dtype, device = points.dtype, points.device
+    _check_shape(normals, "normals", (B, K, 3))
+    _check_shape(mu, "mu", (B, K))
+    _check_shape(wrench, "wrench", (B, 6))
+    if mask is not None:
+        _check_shape(mask, "mask", (B, K), floating=False)
+        if mask.dtype != torch.bool:
+            raise ValueError(f"solve_friction_cone: mask must be bool, got {mask.dtype}")
+    for name, x, shape in (("weights", weights, (B, K)), ("sliding_dir", sliding_dir, (B, K, 3)),
+                           ("warm_start", warm_start, (B, K, 3))):
+        if x is not None:
+            _check_shape(x, name, shape)
+    for name, x in (("normals", normals), ("mu", mu), ("wrench", wrench), ("weights", weights),
+                    ("sliding_dir", sliding_dir), ("warm_start", warm_start)):
+        if x is not None and (x.dtype != dtype or x.device != device):
+            raise ValueError(f"solve_friction_cone: {name} must be {dtype} on {device} like points, "
+                             f"got {x.dtype} on {x.device}")
+    if check_every < 1:
+        raise ValueError(f"solve_friction_cone: check_every must be >= 1, got {check_every}")
+
+
+def _local_axes(act, sliding_dir, nn, mu_c, zero):
+    """Local frames: e0 = the normal (static) or the unit sliding ray (mu_eff = 0). Returns R (B, K, 3, 3), columns
+    = local axes in world, and mu_eff (B, K)."""
+    e0, mu_eff = nn, mu_c
+    if sliding_dir is not None:
+        s = torch.where(act[..., None], sliding_dir, zero)
+        s = s - (s * nn).sum(-1, keepdim=True) * nn
+        s_norm = torch.linalg.vector_norm(s, dim=-1)
+        sliding = s_norm > 1e-6
+        ray = nn - mu_c[..., None] * s / s_norm.clamp_min(1e-6)[..., None]
+        ray = ray / torch.linalg.vector_norm(ray, dim=-1, keepdim=True)
+        e0 = torch.where(sliding[..., None], ray, nn)
+        mu_eff = torch.where(sliding, zero, mu_c)
+    t1, t2 = tangent_frame(e0)
+    R = torch.stack([e0, t1, t2], -1)                       # (B, K, 3, 3), columns = local axes in world
+    return R, mu_eff
+
+
+def _initial_point(warm_start, R, act, zero, beta, mu_eff, prob, settings, B, K, dtype, device):
+    """ADMM's first point: zero, or the warm start's world forces in normalised local coordinates with a dual fitted
+    to them."""
+    if warm_start is not None:
+        # Parent forces -> local, normalised, with a dual fitted to them; polished before the first iteration.
+        z0 = (R.transpose(-1, -2) @ torch.where(act[..., None], warm_start, zero)[..., None]).squeeze(-1)
+        z0 = project_cone((z0 / beta[:, None, None]).transpose(1, 2).reshape(B, 3 * K), mu_eff)
+        rho0 = torch.full((B, 1), settings.rho, dtype=dtype, device=device)
+        return warm_point(z0, prob.A, prob.c, mu_eff, act, rho0)
+    else:
+        return torch.zeros(B, 3 * K, dtype=dtype, device=device)
+
+
+def _in_world(R, z, status, iterations, beta, actf, w_c, nn, p, F, invalid, B, K, dtype) -> ConeResult:
+    """Forces in the world frame, objective and residual in physical units, from ADMM's normalised local point."""
+    solved = (status == int(SolverStatus.CONVERGED)) | (status == int(SolverStatus.MAX_ITERATIONS))
+    scale = (beta * solved.to(dtype))[:, None, None]
+    forces = (R @ z.view(B, 3, K).transpose(1, 2)[..., None]).squeeze(-1) * scale * actf[..., None]
+    objective = (w_c * (forces * nn).sum(-1)).sum(-1)
+    res_f = forces.sum(1) - F[:, :3]
+    res_t = torch.cross(p, forces, dim=-1).sum(1) - F[:, 3:]
+    residual = torch.linalg.vector_norm(res_f, dim=-1) + torch.linalg.vector_norm(res_t, dim=-1)
+    residual = torch.where(invalid, torch.full_like(residual, math.inf), residual)
+    return ConeResult(forces, objective, residual, status, iterations)
+
+
 def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.Tensor, wrench: torch.Tensor, *,
                         mask: torch.Tensor | None = None, weights: torch.Tensor | None = None,
                         sliding_dir: torch.Tensor | None = None, warm_start: torch.Tensor | None = None,
@@ -139,30 +210,10 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
         :class:`ConeResult`. Problems with NaN/inf in an active entry (or a zero normal, mu < 0, weight < 0) are
         INVALID_INPUT and the rest solve as usual. Raises ``ValueError`` naming the argument on wrong shapes.
     """
-    if not isinstance(points, torch.Tensor) or points.dim() != 3 or points.shape[-1] != 3:
-        raise ValueError("solve_friction_cone: points must have shape (B, K, 3), got "
-                         f"{tuple(points.shape) if isinstance(points, torch.Tensor) else type(points).__name__}")
+    _check_args(points, normals, mu, wrench, mask, weights, sliding_dir, warm_start, check_every)
     B, K, _ = points.shape
     dtype, device = points.dtype, points.device
     tab = cone_tolerances(dtype)
-    _check_shape(normals, "normals", (B, K, 3))
-    _check_shape(mu, "mu", (B, K))
-    _check_shape(wrench, "wrench", (B, 6))
-    if mask is not None:
-        _check_shape(mask, "mask", (B, K), floating=False)
-        if mask.dtype != torch.bool:
-            raise ValueError(f"solve_friction_cone: mask must be bool, got {mask.dtype}")
-    for name, x, shape in (("weights", weights, (B, K)), ("sliding_dir", sliding_dir, (B, K, 3)),
-                           ("warm_start", warm_start, (B, K, 3))):
-        if x is not None:
-            _check_shape(x, name, shape)
-    for name, x in (("normals", normals), ("mu", mu), ("wrench", wrench), ("weights", weights),
-                    ("sliding_dir", sliding_dir), ("warm_start", warm_start)):
-        if x is not None and (x.dtype != dtype or x.device != device):
-            raise ValueError(f"solve_friction_cone: {name} must be {dtype} on {device} like points, "
-                             f"got {x.dtype} on {x.device}")
-    if check_every < 1:
-        raise ValueError(f"solve_friction_cone: check_every must be >= 1, got {check_every}")
     eps = tab.tol if tol is None else float(tol)
     max_iters = tab.max_iters if max_iters is None else int(max_iters)
 
@@ -188,19 +239,7 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
     w_c = torch.where(act, w, zero)
     F = torch.where(invalid[:, None], zero, wrench)
 
-    # --- local frames: e0 = normal (static) or the unit sliding ray (mu_eff = 0) ------------------------------
-    e0, mu_eff = nn, mu_c
-    if sliding_dir is not None:
-        s = torch.where(act[..., None], sliding_dir, zero)
-        s = s - (s * nn).sum(-1, keepdim=True) * nn
-        s_norm = torch.linalg.vector_norm(s, dim=-1)
-        sliding = s_norm > 1e-6
-        ray = nn - mu_c[..., None] * s / s_norm.clamp_min(1e-6)[..., None]
-        ray = ray / torch.linalg.vector_norm(ray, dim=-1, keepdim=True)
-        e0 = torch.where(sliding[..., None], ray, nn)
-        mu_eff = torch.where(sliding, zero, mu_c)
-    t1, t2 = tangent_frame(e0)
-    R = torch.stack([e0, t1, t2], -1)                       # (B, K, 3, 3), columns = local axes in world
+    R, mu_eff = _local_axes(act, sliding_dir, nn, mu_c, zero)   # local frames: e0 = normal or sliding ray
 
     # --- normalisation ---------------------------------------------------------------------------------------
     count = actf.sum(-1)
@@ -228,27 +267,11 @@ def solve_friction_cone(points: torch.Tensor, normals: torch.Tensor, mu: torch.T
                             polish=bool(polish))
     if polish_from is not None:
         settings = settings._replace(polish_from=int(polish_from))
-    if warm_start is not None:
-        # Parent forces -> local, normalised, with a dual fitted to them; polished before the first iteration.
-        z0 = (R.transpose(-1, -2) @ torch.where(act[..., None], warm_start, zero)[..., None]).squeeze(-1)
-        z0 = project_cone((z0 / beta[:, None, None]).transpose(1, 2).reshape(B, 3 * K), mu_eff)
-        rho0 = torch.full((B, 1), settings.rho, dtype=dtype, device=device)
-        w0 = warm_point(z0, prob.A, prob.c, mu_eff, act, rho0)
-    else:
-        w0 = torch.zeros(B, 3 * K, dtype=dtype, device=device)
+    w0 = _initial_point(warm_start, R, act, zero, beta, mu_eff, prob, settings, B, K, dtype, device)
 
     out = admm(prob, w0, settings, decided=invalid | range_infeasible, check_first=warm_start is not None)
     status = torch.where(range_infeasible, int(SolverStatus.INFEASIBLE), out.status)
     status = torch.where(invalid, int(SolverStatus.INVALID_INPUT), status).to(torch.int8)
     z, iterations = out.z, out.iterations
 
-    # --- forces in the world frame, objective and residual in physical units ----------------------------------
-    solved = (status == int(SolverStatus.CONVERGED)) | (status == int(SolverStatus.MAX_ITERATIONS))
-    scale = (beta * solved.to(dtype))[:, None, None]
-    forces = (R @ z.view(B, 3, K).transpose(1, 2)[..., None]).squeeze(-1) * scale * actf[..., None]
-    objective = (w_c * (forces * nn).sum(-1)).sum(-1)
-    res_f = forces.sum(1) - F[:, :3]
-    res_t = torch.cross(p, forces, dim=-1).sum(1) - F[:, 3:]
-    residual = torch.linalg.vector_norm(res_f, dim=-1) + torch.linalg.vector_norm(res_t, dim=-1)
-    residual = torch.where(invalid, torch.full_like(residual, math.inf), residual)
-    return ConeResult(forces, objective, residual, status, iterations)
+    return _in_world(R, z, status, iterations, beta, actf, w_c, nn, p, F, invalid, B, K, dtype)

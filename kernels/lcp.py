@@ -169,31 +169,9 @@ def _to_soa(M: torch.Tensor, dtype: torch.dtype | None = None, chunk: int = 256)
     return out
 
 
-def solve_lcp_pgs(M: torch.Tensor, q: torch.Tensor, *, x0: torch.Tensor | None = None,
-                  mask: torch.Tensor | None = None, tol: float | None = None, max_iters: int | None = None,
-                  check_every: int = 10, omega: float = 1.0, subspace: bool = False,
-                  mixed: bool = False) -> LCPResult:
-    """Projected Gauss-Seidel for a batch of standard LCPs: x >= 0, w = M x + q >= 0, x^T w = 0.
-
-    Args:
-        M: LCP matrices, (B, n, n); every active diagonal entry must be > 0 (else that problem is INVALID_INPUT)
-        q: LCP vectors, (B, n)
-        x0: warm start, (B, n); negative entries are clipped to 0. Default 0
-        mask: active entries, (B, n) bool; padded entries (False) are ignored and come back as x = w = 0
-        tol: absolute tolerance on ||min(x, w)||_inf; default per dtype (:func:`lcp_tolerances`)
-        max_iters: limit on sweeps per problem; default per dtype
-        check_every: sweeps between convergence checks (the only host syncs)
-        omega: relaxation factor in (0, 2); 1 is plain PGS
-        subspace: also try a subspace-minimisation step at every check (PGS-SM, see the module docstring)
-        mixed: float64 problems only: run the sweeps in float32 on corrections that every check refines against
-            the exact float64 residual (see the module docstring); ignored for float32
-
-    Returns:
-        :class:`LCPResult`. Per problem: CONVERGED (residual <= tol), MAX_ITERATIONS (the last iterate is
-        returned), UNBOUNDED (the iterate diverged past a huge bound or became non-finite; the last finite
-        checkpoint is returned) or INVALID_INPUT (NaN/inf in an active entry, or an active diagonal entry <= 0).
-        Raises ``ValueError`` naming the argument on wrong shapes, dtypes or options.
-    """
+def _checked(M, q, x0, mask, check_every, omega, tol, max_iters):
+    """:func:`solve_lcp_pgs`'s arguments checked (``ValueError`` naming the argument) and its defaults filled in.
+    Returns B, n, dtype, device, the tolerance table, tol, max_iters, check_every."""
     if not isinstance(M, torch.Tensor) or M.dim() != 3 or M.shape[1] != M.shape[2]:
         raise ValueError("solve_lcp_pgs: M must have shape (B, n, n), got "
                          f"{tuple(M.shape) if isinstance(M, torch.Tensor) else type(M).__name__}")
@@ -221,9 +199,14 @@ def solve_lcp_pgs(M: torch.Tensor, q: torch.Tensor, *, x0: torch.Tensor | None =
     if max_iters < 0:
         raise ValueError(f"solve_lcp_pgs: max_iters must be >= 0, got {max_iters}")
     check_every = int(check_every)
-    zero = torch.zeros((), dtype=dtype, device=device)
+    return B, n, dtype, device, tab, tol, max_iters, check_every
 
-    # --- padding becomes identity rows with q = 0; invalid problems never enter the working set ---------------
+
+def _start(M, q, x0, mask, max_iters, zero):
+    """Padding as identity rows with q = 0, the invalid problems (which never enter the working set), the starting
+    point and the initial status and iteration counts. Returns act, Ms, qs, invalid, x, w, status, iterations."""
+    B, n, _ = M.shape
+    dtype, device = M.dtype, M.device
     if mask is None:
         act = torch.ones(B, n, dtype=torch.bool, device=device)
         Ms, qs = M, q
@@ -245,6 +228,38 @@ def solve_lcp_pgs(M: torch.Tensor, q: torch.Tensor, *, x0: torch.Tensor | None =
     status = torch.where(invalid, torch.full_like(status, int(SolverStatus.INVALID_INPUT)), status)
     iterations = torch.full((B,), max_iters, dtype=torch.int32, device=device)
     iterations = torch.where(invalid, torch.zeros_like(iterations), iterations)
+    return act, Ms, qs, invalid, x, w, status, iterations
+
+
+def solve_lcp_pgs(M: torch.Tensor, q: torch.Tensor, *, x0: torch.Tensor | None = None,
+                  mask: torch.Tensor | None = None, tol: float | None = None, max_iters: int | None = None,
+                  check_every: int = 10, omega: float = 1.0, subspace: bool = False,
+                  mixed: bool = False) -> LCPResult:
+    """Projected Gauss-Seidel for a batch of standard LCPs: x >= 0, w = M x + q >= 0, x^T w = 0.
+
+    Args:
+        M: LCP matrices, (B, n, n); every active diagonal entry must be > 0 (else that problem is INVALID_INPUT)
+        q: LCP vectors, (B, n)
+        x0: warm start, (B, n); negative entries are clipped to 0. Default 0
+        mask: active entries, (B, n) bool; padded entries (False) are ignored and come back as x = w = 0
+        tol: absolute tolerance on ||min(x, w)||_inf; default per dtype (:func:`lcp_tolerances`)
+        max_iters: limit on sweeps per problem; default per dtype
+        check_every: sweeps between convergence checks (the only host syncs)
+        omega: relaxation factor in (0, 2); 1 is plain PGS
+        subspace: also try a subspace-minimisation step at every check (PGS-SM, see the module docstring)
+        mixed: float64 problems only: run the sweeps in float32 on corrections that every check refines against
+            the exact float64 residual (see the module docstring); ignored for float32
+
+    Returns:
+        :class:`LCPResult`. Per problem: CONVERGED (residual <= tol), MAX_ITERATIONS (the last iterate is
+        returned), UNBOUNDED (the iterate diverged past a huge bound or became non-finite; the last finite
+        checkpoint is returned) or INVALID_INPUT (NaN/inf in an active entry, or an active diagonal entry <= 0).
+        Raises ``ValueError`` naming the argument on wrong shapes, dtypes or options.
+    """
+    B, n, dtype, device, tab, tol, max_iters, check_every = _checked(M, q, x0, mask, check_every, omega, tol,
+                                                                    max_iters)
+    zero = torch.zeros((), dtype=dtype, device=device)
+    act, Ms, qs, invalid, x, w, status, iterations = _start(M, q, x0, mask, max_iters, zero)
     codes = {s: torch.tensor(int(s), dtype=torch.int8, device=device) for s in SolverStatus}
 
     # --- working set: slots -> problems, structure-of-arrays copies (coordinates leading) ----------------------

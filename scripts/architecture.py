@@ -3,8 +3,9 @@
     python scripts/architecture.py            # the figures, human readable
     python scripts/architecture.py --json     # the same as JSON
 
-A function over the limit is an exception only in ``torchhand.kernels`` (its solver loops) and only when the line
-right above its ``def`` (or its first decorator) is a comment ``# long function: <reason>``.
+A function over the limit is an exception only in ``torchhand.kernels`` (its solver loops) and only when the comment
+right above its ``def`` (or its first decorator) starts ``# long function: <reason>`` (the reason may run on over
+more comment lines).
 
 Every import statement counts, also those inside functions (a lazy import is still a dependency); imports under
 ``if TYPE_CHECKING:`` do not. Modules are named as they are imported (``torchhand.kernels`` lives in ``kernels/``).
@@ -129,9 +130,14 @@ def _walk(mod: Module, tree: ast.AST, known: set[str]) -> None:
                 length = (child.end_lineno or child.lineno) - child.lineno + 1
                 mod.functions.append((qual, child.lineno, length))
                 first = min([child.lineno] + [d.lineno for d in child.decorator_list])
-                above = mod.source_lines[first - 2].strip() if first >= 2 else ""
-                if above.startswith(EXCEPTION_MARK):
-                    mod.exceptions[qual] = above[len(EXCEPTION_MARK):].strip()
+                block = []                    # the comment lines right above the def (or its first decorator)
+                k = first - 2
+                while k >= 0 and mod.source_lines[k].strip().startswith("#"):
+                    block.insert(0, mod.source_lines[k].strip())
+                    k -= 1
+                if block and block[0].startswith(EXCEPTION_MARK):
+                    text = " ".join(b.lstrip("#").strip() for b in block)
+                    mod.exceptions[qual] = text[len(EXCEPTION_MARK) - 2:].strip()
                 visit(child, qual + ".")
             elif isinstance(child, ast.ClassDef):
                 visit(child, f"{scope}{child.name}.")
