@@ -150,7 +150,7 @@ def analyse() -> dict[str, Module]:
     modules = discover()
     known = set(modules)
     for mod in modules.values():
-        _walk(mod, ast.parse(mod.path.read_text(encoding="utf-8")), known)
+        _walk(mod, ast.parse("\n".join(mod.source_lines)), known)
         mod.imports.discard(mod.name)
     return modules
 

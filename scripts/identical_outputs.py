@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("TORCHHAND_SHARED_DATA", ROOT.parent / "shared" / "data"))
+SHARED = Path(os.environ.get("TORCHHAND_SHARED_DATA", ROOT.parent / "shared" / "data")).resolve()
 SYNTH_SCENES = ["box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "cube-turn"]
 MANIP_SCENES = ["liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift",
                 "liu-two-hand-lift"]
@@ -61,7 +61,7 @@ def jobs(out: Path) -> list[tuple[str, list[str]]]:
                                       "--frames", "12:54"]),
         ("capture-resynthesize", th + ["capture", "resynthesize",
                                        str(out / "capture-from-result" / "interaction.npz"),
-                                       "--scene", "box-turn", "--out", "{dir}", "--no-progress"]),
+                                       "--scene", "box-turn", "--out", "{dir}"]),
         ("capture-demo-resynth", py + [str(ROOT / "scripts" / "demo_resynth.py"), "--out", "{dir}"]),
         ("capture-demo-inferred", py + [str(ROOT / "scripts" / "demo_inferred.py"), "--out", "{dir}",
                                         "--result", str(out / "synth-box-turn"), "--frames", "12:54"]),
@@ -116,7 +116,9 @@ def file_digest(path: Path, out: Path) -> str:
 
 def run(out: Path, only: str | None) -> int:
     out.mkdir(parents=True, exist_ok=True)
-    digests: dict[str, dict[str, str]] = {}
+    previous = out / "digests.json"      # a later run with --only adds to (or replaces) jobs of an earlier one
+    digests: dict[str, dict[str, str]] = json.loads(previous.read_text()) if previous.is_file() else {}
+    env = {**os.environ, "TORCHHAND_SHARED_DATA": str(SHARED)}
     failed = 0
     for name, cmd in jobs(out):
         if only and not re.search(only, name):
@@ -129,7 +131,7 @@ def run(out: Path, only: str | None) -> int:
         if "splice-accuracy" in name:
             d.mkdir()
         t0 = time.perf_counter()
-        p = subprocess.run(cmd, cwd=out, capture_output=True, text=True)
+        p = subprocess.run(cmd, cwd=out, capture_output=True, text=True, env=env)
         dt = time.perf_counter() - t0
         entry = {"<exit>": str(p.returncode), "<stdout>": hashlib.sha256(_clean_text(p.stdout, d).encode()).hexdigest()}
         (out / f"{name}.log").write_text(p.stdout + "\n--- stderr ---\n" + p.stderr, encoding="utf-8")

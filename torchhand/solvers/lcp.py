@@ -1,6 +1,11 @@
-"""Linear complementarity problems: batched solve with an exact fallback, test-problem builders, Siconos reader.
+"""Linear complementarity problems: the front door :func:`solve`, the batched solve with an exact fallback,
+test-problem builders, Siconos reader.
 
-:func:`solve_lcp` is the entry point for standard LCPs (x >= 0, w = M x + q >= 0, x^T w = 0) of a batch: it
+:func:`solve` takes the backend by name: ``"pgs"`` is :func:`solve_lcp` (torch, batched: ``M`` (B, n, n), ``q``
+(B, n); returns :class:`LCPSolution`), ``"lemke"`` is :func:`torchhand.solvers._lemke.lemke` (one problem, NumPy
+float64: ``M`` (n, n), ``q`` (n,); returns its ``LemkeResult``); options pass through unchanged.
+
+:func:`solve_lcp` is the batched solver for standard LCPs (x >= 0, w = M x + q >= 0, x^T w = 0) of a batch: it
 validates at the boundary (raising :class:`~torchhand.errors.TorchhandError` subclasses), runs the batched
 projected Gauss-Seidel kernel :func:`torchhand.kernels.lcp.solve_lcp_pgs`, and hands the small problems PGS could
 not finish (MAX_ITERATIONS, a diverged iterate, or a zero/negative diagonal PGS cannot divide by) to Lemke's method
@@ -11,6 +16,7 @@ Siconos LCP test files.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -24,7 +30,9 @@ from ..kernels.lcp import LCPResult, lcp_residual, lcp_tolerances, solve_lcp_pgs
 from ..kernels.status import SolverStatus
 from ._lemke import lemke
 
-__all__ = ["LCPSolution", "LCPProblem", "solve_lcp", "random_lcp", "read_siconos_lcp"]
+__all__ = ["BACKENDS", "solve", "LCPSolution", "LCPProblem", "solve_lcp", "random_lcp", "read_siconos_lcp"]
+
+BACKENDS = ("pgs", "lemke")
 
 
 @dataclass(frozen=True)
@@ -239,3 +247,22 @@ def _parse_siconos(toks: list[float]) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"unknown storage type {storage}")
     q = np.array(take(n))
     return M, q
+
+
+def solve(M, q, *, backend: str, **options):
+    """Solve LCP(M, q) with the named backend: ``"pgs"`` (:func:`solve_lcp`, a batch) or ``"lemke"``
+    (:func:`torchhand.solvers._lemke.lemke`, one problem); see the module docstring.
+
+    Raises:
+        InputValueError: an unknown backend or option (the message names the choices); the backend's own errors.
+    """
+    from .qp import check_options
+
+    fns = {"pgs": solve_lcp, "lemke": lemke}
+    if backend not in fns:
+        raise InputValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+    params = inspect.signature(fns[backend]).parameters
+    positional = [n for n, p in params.items() if p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD][2:]
+    options_ok = {k: v for k, v in options.items() if k not in positional}
+    check_options(fns[backend], f"backend {backend!r}", options_ok)
+    return fns[backend](M, q, **options)

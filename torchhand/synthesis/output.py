@@ -22,6 +22,7 @@ import math
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -32,8 +33,11 @@ from ..errors import InputValueError, TorchhandError
 from ..hand.mjcf import hand_to_mjcf
 from ..io.result import FORMAT_VERSION
 from .node_test import contact_slots
-from .pipeline import SynthesisResult, diversity
+from ._diversity import diversity
 from .problem import SynthesisProblem
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .pipeline import SynthesisResult
 
 __all__ = ["MAX_CONTACTS", "ResultWriter", "solution_arrays", "solution_view", "stats_dict", "write_result"]
 

@@ -40,6 +40,7 @@ from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_po
 from .problem import SynthesisProblem, build_problem
 from .reconstruct import ContactTrack, reconstruct_motion
 from .search import SearchSettings, SearchStats, Solution, search
+from ._diversity import diversity  # noqa: F401  (re-exported: the diversity of a result)
 
 __all__ = ["FinalSolution", "SynthesisResult", "synthesize", "finalize_solution"]
 
@@ -313,21 +314,3 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
                       "total_s": t_total}
     result.complete = True
     return result
-
-
-def diversity(solutions: list) -> float:
-    """Mean pairwise distance between the guiding-point trajectories of the solutions: the mean over frames and
-    fingers of |p_a - p_b| (object frame, metres), a finger counted where either solution guides it (a missing
-    guide counts as the object's origin). NaN with fewer than two solutions."""
-    if len(solutions) < 2:
-        return math.nan
-    pts = [s.guide_obj * s.guiding[..., None] for s in solutions]
-    on = [s.guiding for s in solutions]
-    total, count = 0.0, 0
-    for a in range(len(pts)):
-        for b in range(a + 1, len(pts)):
-            either = on[a] | on[b]
-            d = (pts[a] - pts[b]).norm(dim=-1)
-            total += float(d[either].mean()) if bool(either.any()) else 0.0
-            count += 1
-    return total / count

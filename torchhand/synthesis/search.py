@@ -31,14 +31,14 @@ from dataclasses import dataclass, field
 import torch
 
 from .initial import InitialSamples
-from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
-                        Guides, NodeTestSettings, contact_slots, pad_points, run_node_test)
+from .node_test import (CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
+                        NodeTestSettings, pad_points)
 from .problem import SynthesisProblem
+from ._search_expand import _FREE, _RELOCATE, _SLIDE, _STATIC, KEEP, expand
 
 __all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
 
 STRATEGIES = ("static", "sliding", "relocating", "mixed")
-_STATIC, _SLIDE, _RELOCATE, _FREE = 0, 1, 2, 3
 
 
 @dataclass(frozen=True)
@@ -100,8 +100,7 @@ class Solution:
     tree: int
 
 
-_KEEP = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "env_force", "seed_on", "seed_link",
-         "seed_local", "seed_obj", "seed_class", "seed_tdir")
+_KEEP = KEEP
 
 
 class _Node:
@@ -309,126 +308,9 @@ class _Search:
 
     # --- one batched expansion of every tree ------------------------------------------------------------------
     def _expand(self, jobs):
-        """jobs: list of (tree, node, plans, w). Tests every plan over its window; returns per job the list of
-        feasible (frames, guides) and the failure summary."""
-        p, H, F = self.p, self.H, self.F
-        device, dtype = p.device, p.dtype
-        # flatten candidates
-        cand = []
-        for j, (tree, node, plans, w) in enumerate(jobs):
-            for plan in plans:
-                cand.append((j, node, plan, w))
-        N = len(cand)
-        t0 = torch.tensor([c[1].t1 for c in cand], device=device)
-        w = torch.tensor([c[3] for c in cand], device=device)
-        active = torch.zeros(N, H, F, dtype=torch.bool, device=device)
-        link = self.tip_link.expand(N, H, F).clone()
-        local = self.tip_local.expand(N, H, F, 3).clone()
-        obj = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
-        slide = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
-        land = torch.zeros(N, H, F, dtype=torch.long, device=device)       # first guided frame of a relocation
-        was_on = torch.zeros(N, H, F, dtype=torch.bool, device=device)     # finger touched at the previous frame
-        q_prev = self.q_rest.expand(N, H, -1).clone()
-        first = torch.zeros(N, dtype=torch.bool, device=device)
-        weights = torch.ones(N, H, F, dtype=dtype, device=device)
-        K = contact_slots(p)[0].numel()
-        prev_mask = torch.zeros(N, K, dtype=torch.bool, device=device)   # hand contacts of the previous frame
-        for i, (j, node, plan, wi) in enumerate(cand):
-            if node.frames is None:
-                first[i] = True
-            else:
-                q_prev[i] = node.frames["q"][-1]
-                was_on[i] = node.frames["seed_on"][-1]
-                prev_mask[i] = node.frames["c_mask"][-1]
-                zero = node.frames["seed_class"][-1] == FORCE_ZERO
-                if self.s.strategy in ("relocating", "mixed"):
-                    weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
-                                             torch.full_like(weights[i], self.s.free_weight), weights[i])
-            for gi, (kind, sample, land_k) in enumerate(plan):
-                h, f = divmod(gi, F)
-                if kind in (_STATIC, _SLIDE):
-                    active[i, h, f] = True
-                    link[i, h, f] = node.frames["seed_link"][-1, h, f]
-                    local[i, h, f] = node.frames["seed_local"][-1, h, f]
-                    obj[i, h, f] = node.frames["seed_obj"][-1, h, f]
-                    if kind == _SLIDE:
-                        slide[i, h, f] = node.frames["seed_tdir"][-1, h, f]
-                elif kind == _RELOCATE and sample >= 0:
-                    active[i, h, f] = True
-                    obj[i, h, f] = p.surface[sample]
-                    land[i, h, f] = min(land_k, wi - 1)
-        step = self.s.slide_speed / p.fps
-        alive = torch.ones(N, dtype=torch.bool, device=device)
-        frames = {k: [] for k in _KEEP}
-        g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
-        fail_cause = torch.zeros(N, dtype=torch.long, device=device)
-        fail_k = torch.zeros(N, dtype=torch.long, device=device)
-        fail_fingers = [None] * N
-        wmax = int(w.max())
-        for k in range(wmax):
-            run = alive & (k < w)
-            sel = run.nonzero().squeeze(-1)
-            if sel.numel() == 0:
-                break
-            if k > 0:
-                # sliding contacts advance along the surface, re-projected with the SDF
-                moving = slide[sel].norm(dim=-1, keepdim=True) > 0
-                pnew = obj[sel] + step * slide[sel]
-                sd, grad = p.sdf.query_with_grad(pnew.reshape(1, -1, 3))
-                n = grad.reshape(pnew.shape) / grad.reshape(pnew.shape).norm(dim=-1, keepdim=True).clamp_min(1e-9)
-                pnew = pnew - sd.reshape(pnew.shape[:-1])[..., None] * n
-                sdir = slide[sel] - (slide[sel] * n).sum(-1, keepdim=True) * n
-                sdir = sdir / sdir.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-                obj[sel] = torch.where(moving, pnew, obj[sel])
-                slide[sel] = torch.where(moving, sdir, slide[sel])
-            act_k = active[sel] & (land[sel] <= k)
-            guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
-            lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
-            res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
-                                weights[sel], settings=self.ns, prev_mask=prev_mask[sel])
-            self.stats.nodes_tested += int(sel.numel())
-            ok = res.feasible
-            bad = sel[~ok]
-            self.stats.dead_ends += int(bad.numel())
-            for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
-                                   (CAUSE_DYNAMIC, "dynamic")):
-                self.stats.rejections[name] += int((res.cause == cause_id).sum())
-            fail_cause[bad] = res.cause[~ok]
-            for tf, c in zip((t0[bad] + k).tolist(), res.cause[~ok].tolist()):
-                self.stats.rejections_by_frame[tf][c - 1] += 1
-            fail_k[bad] = k
-            for r in (~ok).nonzero().squeeze(-1).tolist():
-                gi = sel[r].item()
-                if res.cause[r] == CAUSE_KINEMATIC:
-                    fail_fingers[gi] = res.kin_fail[r].flatten().nonzero().squeeze(-1).tolist()
-                elif res.cause[r] == CAUSE_FINGERS:
-                    fail_fingers[gi] = res.pair[r].tolist()
-            alive[bad] = False
-            q_prev[sel] = res.q
-            prev_mask[sel] = res.c_mask
-            # store this frame's outputs for every candidate (rows of the ones not run stay unused)
-            for key in _KEEP:
-                full = getattr(res, key)
-                buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=device)
-                buf[sel] = full
-                frames[key].append(buf)
-            gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
-            gl[sel] = act_k
-            g_frames["guiding"].append(gl)
-            g_frames["guide_obj"].append(obj.clone())
-            g_frames["guide_link"].append(link.clone())
-            g_frames["guide_local"].append(local.clone())
-        # regroup per job
-        results = [{"feasible": [], "fail": None, "template": None} for _ in jobs]
-        for i, (j, node, plan, wi) in enumerate(cand):
-            if bool(alive[i]):
-                fr = {key: torch.stack([frames[key][k][i] for k in range(wi)]) for key in _KEEP}
-                gd = {key: torch.stack([g_frames[key][k][i] for k in range(wi)]) for key in g_frames}
-                results[j]["feasible"].append((fr, gd))
-            elif results[j]["fail"] is None:
-                results[j]["fail"] = (int(fail_cause[i]), fail_fingers[i] or [], int(fail_k[i]))
-                results[j]["template"] = plan
-        return results
+        """jobs: list of (tree, node, plans, w). Tests every plan over its window; returns per job its
+        :class:`~._search_expand.Expansion` (feasible (frames, guides), failure, template)."""
+        return expand(self, jobs)
 
     # --- main loop --------------------------------------------------------------------------------------------
     def run(self, progress=None, accept=None) -> list[Solution]:
@@ -467,13 +349,13 @@ class _Search:
             results = self._expand(jobs)
             for (tree, node, plans, w), res in zip(jobs, results):
                 node.expansions += 1
-                if res["feasible"]:
-                    order = torch.randperm(len(res["feasible"]), generator=tree.gen).tolist()
-                    feas = [res["feasible"][o] for o in order]
+                if res.feasible:
+                    order = torch.randperm(len(res.feasible), generator=tree.gen).tolist()
+                    feas = [res.feasible[o] for o in order]
                     self._push(tree, node, feas[0])
                     node.pending.extend(feas[1:])
                 else:
-                    node.fail, node.template = res["fail"], res["template"]
+                    node.fail, node.template = res.fail, res.template
             self.stats.time_s = time.perf_counter() - start
             if progress is not None:
                 progress(self)

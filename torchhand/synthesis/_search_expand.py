@@ -1,0 +1,236 @@
+"""One expansion round of the contact search (:mod:`.search`): every candidate plan of every job tested frame by
+frame over its window by the batched node test, and the outcome regrouped per job.
+
+The candidates' guiding state is one :class:`Candidates` record of batched tensors (the rows are candidates);
+the per-frame outputs of the node test are collected in :class:`WindowOutcome`; each job gets an
+:class:`Expansion`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+
+from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_ZERO, Guides, contact_slots,
+                        run_node_test)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .search import _Search
+
+__all__ = ["Candidates", "WindowOutcome", "Expansion", "expand"]
+
+_STATIC, _SLIDE, _RELOCATE, _FREE = 0, 1, 2, 3     # a finger's part in a plan: keep, slide, relocate, let go
+KEEP = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "env_force", "seed_on", "seed_link",
+        "seed_local", "seed_obj", "seed_class", "seed_tdir")
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """The guiding state of N candidates (one per plan of every job), batched; some tensors are advanced in place
+    while the window is tested (``obj``, ``slide`` of sliding contacts, ``q_prev``, ``prev_mask``).
+
+    t0: the frame each window starts at, (N,); w: window lengths, (N,); active, link, local, obj, slide: the
+    guiding points per hand and finger, (N, H, F[, 3]); land: the first guided frame of a relocation, (N, H, F);
+    was_on: the finger touched at the previous frame; q_prev: previous joint angles, (N, H, D); first: the window
+    starts the motion, (N,); weights: the fingers' force weights; prev_mask: the previous frame's contacts, (N, K).
+    """
+
+    t0: torch.Tensor
+    w: torch.Tensor
+    active: torch.Tensor
+    link: torch.Tensor
+    local: torch.Tensor
+    obj: torch.Tensor
+    slide: torch.Tensor
+    land: torch.Tensor
+    was_on: torch.Tensor
+    q_prev: torch.Tensor
+    first: torch.Tensor
+    weights: torch.Tensor
+    prev_mask: torch.Tensor
+
+
+@dataclass(frozen=True)
+class WindowOutcome:
+    """Per candidate: still feasible after its window (``alive``), the node test's per-frame outputs (``frames``:
+    :data:`KEEP` names -> list over frames of (N, ...); ``g_frames``: the guiding points per frame), and for the
+    failed ones the cause, the frame within the window and the fingers involved."""
+
+    alive: torch.Tensor
+    frames: dict
+    g_frames: dict
+    fail_cause: torch.Tensor
+    fail_k: torch.Tensor
+    fail_fingers: list
+
+
+@dataclass(frozen=True)
+class Expansion:
+    """What one job's expansion found: its feasible windows as (frames, guides) pairs, and for the first failed
+    candidate the failure (cause, fingers, frame) and the plan it tried (``template``)."""
+
+    feasible: list
+    fail: tuple | None
+    template: object
+
+
+def expand(search: "_Search", jobs) -> list[Expansion]:
+    """jobs: list of (tree, node, plans, w). Tests every plan over its window; returns per job its
+    :class:`Expansion`."""
+    cand, c = candidates(search, jobs)
+    outcome = run_windows(search, cand, c)
+    return regroup(jobs, cand, outcome)
+
+
+def candidates(search: "_Search", jobs) -> tuple[list, Candidates]:
+    """The candidates of ``jobs`` flattened, (job, node, plan, w) each, and their batched guiding state."""
+    p, H, F = search.p, search.H, search.F
+    device, dtype = p.device, p.dtype
+    # flatten candidates
+    cand = []
+    for j, (tree, node, plans, w) in enumerate(jobs):
+        for plan in plans:
+            cand.append((j, node, plan, w))
+    N = len(cand)
+    t0 = torch.tensor([c[1].t1 for c in cand], device=device)
+    w = torch.tensor([c[3] for c in cand], device=device)
+    active = torch.zeros(N, H, F, dtype=torch.bool, device=device)
+    link = search.tip_link.expand(N, H, F).clone()
+    local = search.tip_local.expand(N, H, F, 3).clone()
+    obj = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
+    slide = torch.zeros(N, H, F, 3, dtype=dtype, device=device)
+    land = torch.zeros(N, H, F, dtype=torch.long, device=device)       # first guided frame of a relocation
+    was_on = torch.zeros(N, H, F, dtype=torch.bool, device=device)     # finger touched at the previous frame
+    q_prev = search.q_rest.expand(N, H, -1).clone()
+    first = torch.zeros(N, dtype=torch.bool, device=device)
+    weights = torch.ones(N, H, F, dtype=dtype, device=device)
+    K = contact_slots(p)[0].numel()
+    prev_mask = torch.zeros(N, K, dtype=torch.bool, device=device)   # hand contacts of the previous frame
+    for i, (j, node, plan, wi) in enumerate(cand):
+        if node.frames is None:
+            first[i] = True
+        else:
+            q_prev[i] = node.frames["q"][-1]
+            was_on[i] = node.frames["seed_on"][-1]
+            prev_mask[i] = node.frames["c_mask"][-1]
+            zero = node.frames["seed_class"][-1] == FORCE_ZERO
+            if search.s.strategy in ("relocating", "mixed"):
+                weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
+                                         torch.full_like(weights[i], search.s.free_weight), weights[i])
+        for gi, (kind, sample, land_k) in enumerate(plan):
+            h, f = divmod(gi, F)
+            if kind in (_STATIC, _SLIDE):
+                active[i, h, f] = True
+                link[i, h, f] = node.frames["seed_link"][-1, h, f]
+                local[i, h, f] = node.frames["seed_local"][-1, h, f]
+                obj[i, h, f] = node.frames["seed_obj"][-1, h, f]
+                if kind == _SLIDE:
+                    slide[i, h, f] = node.frames["seed_tdir"][-1, h, f]
+            elif kind == _RELOCATE and sample >= 0:
+                active[i, h, f] = True
+                obj[i, h, f] = p.surface[sample]
+                land[i, h, f] = min(land_k, wi - 1)
+    return cand, Candidates(t0=t0, w=w, active=active, link=link, local=local, obj=obj, slide=slide, land=land, was_on=was_on, q_prev=q_prev, first=first, weights=weights, prev_mask=prev_mask)
+
+
+def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
+    """Run the node test over every candidate's window, frame by frame, the sliding guides advanced along the
+    surface; a candidate stops at its first infeasible frame."""
+    p, H, F = search.p, search.H, search.F
+    device = p.device
+    N = len(cand)
+    t0 = c.t0
+    w = c.w
+    active = c.active
+    link = c.link
+    local = c.local
+    obj = c.obj
+    slide = c.slide
+    land = c.land
+    was_on = c.was_on
+    q_prev = c.q_prev
+    first = c.first
+    weights = c.weights
+    prev_mask = c.prev_mask
+    step = search.s.slide_speed / p.fps
+    alive = torch.ones(N, dtype=torch.bool, device=device)
+    frames = {k: [] for k in KEEP}
+    g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
+    fail_cause = torch.zeros(N, dtype=torch.long, device=device)
+    fail_k = torch.zeros(N, dtype=torch.long, device=device)
+    fail_fingers = [None] * N
+    wmax = int(w.max())
+    for k in range(wmax):
+        run = alive & (k < w)
+        sel = run.nonzero().squeeze(-1)
+        if sel.numel() == 0:
+            break
+        if k > 0:
+            # sliding contacts advance along the surface, re-projected with the SDF
+            moving = slide[sel].norm(dim=-1, keepdim=True) > 0
+            pnew = obj[sel] + step * slide[sel]
+            sd, grad = p.sdf.query_with_grad(pnew.reshape(1, -1, 3))
+            n = grad.reshape(pnew.shape) / grad.reshape(pnew.shape).norm(dim=-1, keepdim=True).clamp_min(1e-9)
+            pnew = pnew - sd.reshape(pnew.shape[:-1])[..., None] * n
+            sdir = slide[sel] - (slide[sel] * n).sum(-1, keepdim=True) * n
+            sdir = sdir / sdir.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+            obj[sel] = torch.where(moving, pnew, obj[sel])
+            slide[sel] = torch.where(moving, sdir, slide[sel])
+        act_k = active[sel] & (land[sel] <= k)
+        guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
+        lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
+        res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
+                            weights[sel], settings=search.ns, prev_mask=prev_mask[sel])
+        search.stats.nodes_tested += int(sel.numel())
+        ok = res.feasible
+        bad = sel[~ok]
+        search.stats.dead_ends += int(bad.numel())
+        for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
+                               (CAUSE_DYNAMIC, "dynamic")):
+            search.stats.rejections[name] += int((res.cause == cause_id).sum())
+        fail_cause[bad] = res.cause[~ok]
+        for tf, c in zip((t0[bad] + k).tolist(), res.cause[~ok].tolist()):
+            search.stats.rejections_by_frame[tf][c - 1] += 1
+        fail_k[bad] = k
+        for r in (~ok).nonzero().squeeze(-1).tolist():
+            gi = sel[r].item()
+            if res.cause[r] == CAUSE_KINEMATIC:
+                fail_fingers[gi] = res.kin_fail[r].flatten().nonzero().squeeze(-1).tolist()
+            elif res.cause[r] == CAUSE_FINGERS:
+                fail_fingers[gi] = res.pair[r].tolist()
+        alive[bad] = False
+        q_prev[sel] = res.q
+        prev_mask[sel] = res.c_mask
+        # store this frame's outputs for every candidate (rows of the ones not run stay unused)
+        for key in KEEP:
+            full = getattr(res, key)
+            buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=device)
+            buf[sel] = full
+            frames[key].append(buf)
+        gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
+        gl[sel] = act_k
+        g_frames["guiding"].append(gl)
+        g_frames["guide_obj"].append(obj.clone())
+        g_frames["guide_link"].append(link.clone())
+        g_frames["guide_local"].append(local.clone())
+    return WindowOutcome(alive=alive, frames=frames, g_frames=g_frames, fail_cause=fail_cause, fail_k=fail_k, fail_fingers=fail_fingers)
+
+
+def regroup(jobs, cand: list, o: WindowOutcome) -> list[Expansion]:
+    """Per job: the feasible candidates' windows (frames stacked over the window) and the first failure."""
+    alive, frames, g_frames, fail_cause, fail_k, fail_fingers = (o.alive, o.frames, o.g_frames, o.fail_cause, o.fail_k,
+                                                                 o.fail_fingers)
+    feasible: list[list] = [[] for _ in jobs]
+    fail: list = [None] * len(jobs)
+    template: list = [None] * len(jobs)
+    for i, (j, node, plan, wi) in enumerate(cand):
+        if bool(alive[i]):
+            fr = {key: torch.stack([frames[key][k][i] for k in range(wi)]) for key in KEEP}
+            gd = {key: torch.stack([g_frames[key][k][i] for k in range(wi)]) for key in g_frames}
+            feasible[j].append((fr, gd))
+        elif fail[j] is None:
+            fail[j] = (int(fail_cause[i]), fail_fingers[i] or [], int(fail_k[i]))
+            template[j] = plan
+    return [Expansion(feasible[j], fail[j], template[j]) for j in range(len(jobs))]
