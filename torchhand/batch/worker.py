@@ -1,5 +1,7 @@
-"""One attempt of one batch job, in its own process: ``python -m torchhand.batch --stage DIR --threads K --device D
--- synthesize SCENE ...`` (``torchhand/batch/__main__.py`` calls :func:`main`).
+"""One attempt of one batch job, in its own process: ``python -m torchhand.cli.batch_worker --stage DIR --threads K
+--device D -- synthesize SCENE ...`` (the process entry is :mod:`torchhand.cli.batch_worker`, which runs the command
+in the CLI layer; this module holds what the batch needs around it: the command line, environment, exit
+descriptions, the check and the unsuitable-grasp record).
 
 Runs the ``torchhand`` command (``torchhand.cli.main``) with ``--out DIR --threads K`` added, and those of
 ``--device D`` and ``--no-progress`` that the command has (:data:`RUN_FLAGS`), then, when its ``stats.json`` says
@@ -21,10 +23,7 @@ writing after a ``kill -9`` of the batch.
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import io
-import json
 import os
 import signal
 import sys
@@ -32,8 +31,8 @@ from pathlib import Path
 
 from .._numerics import ENV_MODE, portable_env
 
-__all__ = ["RUN_FLAGS", "UNSUITABLE", "command", "describe_exit", "environment", "main", "popen_kwargs",
-           "run_device"]
+__all__ = ["RUN_FLAGS", "UNSUITABLE", "Tee", "command", "describe_exit", "environment", "popen_kwargs",
+           "record_unsuitable", "run_device", "write_check"]
 
 RUN_FLAGS = {"synthesize": ("--device", "--no-progress"), "manipulate": ("--no-progress",), "capture": ()}
 """Method -> the run flags its command has besides ``--out`` and ``--threads`` (a test holds them to the CLI)."""
@@ -50,7 +49,7 @@ def run_device(method: str, device: str) -> str:
 
 def command(argv: list[str], stage: Path, threads: int, device: str) -> list[str]:
     """The worker's command line for a job's ``argv`` (:meth:`torchhand.batch.manifest.Job.argv`)."""
-    return [sys.executable, "-m", "torchhand.batch", "--stage", str(stage), "--threads", str(threads),
+    return [sys.executable, "-m", "torchhand.cli.batch_worker", "--stage", str(stage), "--threads", str(threads),
             "--device", device, "--", *argv]
 
 
@@ -103,42 +102,7 @@ def describe_exit(returncode: int, log: Path) -> str:
     return f"worker exited with {returncode}" + (f": {last}" if last else "")
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m torchhand.batch", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--stage", required=True, help="the attempt's result directory (must not exist)")
-    p.add_argument("--threads", type=int, required=True)
-    p.add_argument("--device", default="cpu")
-    p.add_argument("command", nargs=argparse.REMAINDER, help="-- METHOD SCENE [options]")
-    a = p.parse_args(argv)
-    cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
-    from ..cli import main as cli
-
-    stage = Path(a.stage)
-    method = cmd[0] if cmd else ""
-    flags = RUN_FLAGS.get(method, ("--device", "--no-progress"))
-    run = ["--out", str(stage), "--threads", str(a.threads)] + (["--device", a.device] if "--device" in flags else [])
-    run += ["--no-progress"] if "--no-progress" in flags else []
-    print(f"worker pid {os.getpid()}: torchhand {' '.join(cmd + run)}", flush=True)
-    tee = _Tee(sys.stderr)
-    with contextlib.redirect_stderr(tee):
-        rc = cli(cmd + run)
-    sys.stdout.flush()
-    try:
-        stats = json.loads((stage / "stats.json").read_text())
-    except (OSError, ValueError):
-        stats = {}
-    said = stats.get("status") == "grasp_unsuitable" if stats else any("grasp unsuitable" in ln for ln in tee.lines)
-    if method == "manipulate" and rc == 1 and stats.get("complete") is not True and said:
-        return _unsuitable(stage, stats, tee.lines)
-    if stats.get("complete") is not True:
-        print(f"torchhand batch worker: error: the run did not complete (exit code {rc})", file=sys.stderr)
-        return rc if rc not in (0, 1) else 3
-    _check(stage)
-    return 0
-
-
-def _check(stage: Path) -> None:
+def write_check(stage: Path) -> None:
     """The checker's report on the result in ``stage``, written to ``check.json``."""
     from .._atomic import atomic_json
     from ..check import check_result
@@ -149,7 +113,7 @@ def _check(stage: Path) -> None:
           f"{len(report.solutions)} solutions pass{'' if report.complete else ' (partial result)'}", flush=True)
 
 
-def _unsuitable(stage: Path, stats: dict, lines) -> int:
+def record_unsuitable(stage: Path, stats: dict, lines) -> int:
     """Record a manipulate attempt that found the grasp unsuitable as finished: check the partial result (if any),
     then write ``unsuitable.json`` last."""
     import re
@@ -164,7 +128,7 @@ def _unsuitable(stage: Path, stats: dict, lines) -> int:
     m = re.search(r"at frame (\d+)", message)
     frame = info.get("frame", int(m[1]) if m else None)
     if stats:
-        _check(stage)
+        write_check(stage)
     stage.mkdir(parents=True, exist_ok=True)
     atomic_json(stage / UNSUITABLE, {"status": "grasp_unsuitable", "frame": frame,
                                      "frames_done": stats.get("T", 0) if stats else 0, "message": message,
@@ -173,7 +137,7 @@ def _unsuitable(stage: Path, stats: dict, lines) -> int:
     return 0
 
 
-class _Tee(io.TextIOBase):
+class Tee(io.TextIOBase):
     """A text stream that writes through to ``target`` and keeps the last 100 complete lines written."""
 
     def __init__(self, target):
@@ -191,6 +155,3 @@ class _Tee(io.TextIOBase):
     def flush(self) -> None:
         self.target.flush()
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
