@@ -2,6 +2,7 @@
 
     python scripts/identical_outputs.py run OUT [--only REGEX]   # every job into OUT/<job>/, digests in OUT/digests.json
     python scripts/identical_outputs.py compare A/digests.json B/digests.json
+    python scripts/identical_outputs.py rehash OUT               # digests again from OUT's files
 
 The jobs (each a ``torchhand`` command or a script, run as a user would, under the portable numeric profile):
 
@@ -14,7 +15,7 @@ The jobs (each a ``torchhand`` command or a script, run as a user would, under t
 
 What is compared: every file each job writes. ``.npz`` files by their arrays (name, dtype, shape, bytes; not the
 zip container's write times); ``.json`` files with wall-clock figures and the machine description removed (keys
-ending in ``_s``, ``time``/``timings``, ``per_second``, ``numerics``, ``machine``, ``host``, ``date``); other files by
+ending in ``_s``, ``seconds``, ``time``/``timings``, ``per_second``, ``numerics``, ``machine``, ``host``, ``date``); other files by
 their bytes, with the output directory's path replaced by ``<OUT>``; a job's printed lines likewise, with wall-clock
 figures (``in 2.8 s``, ``17.0 frames/s``) masked.
 """
@@ -38,7 +39,7 @@ SHARED = Path(os.environ.get("TORCHHAND_SHARED_DATA", ROOT.parent / "shared" / "
 SYNTH_SCENES = ["box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "cube-turn"]
 MANIP_SCENES = ["liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift",
                 "liu-two-hand-lift"]
-VOLATILE_KEY = re.compile(r"(_s$|^s$|time|per_second|numerics|machine|host|date|created|elapsed|wall)", re.I)
+VOLATILE_KEY = re.compile(r"(_s$|^s$|seconds|time|per_second|numerics|machine|host|date|created|elapsed|wall)", re.I)
 VOLATILE_TEXT = [
     (re.compile(r"\d+(\.\d+)?(e[-+]?\d+)? ?(s|ms|min|frames/s|nodes/s|steps/s|it/s|/s)\b"), "<T>"),
     (re.compile(r"\d+:\d\d(:\d\d)?"), "<CLOCK>"),
@@ -147,6 +148,21 @@ def run(out: Path, only: str | None) -> int:
     return 0
 
 
+def rehash(out: Path) -> int:
+    """Recompute the file digests of the jobs already in ``out`` (after a change of what counts as volatile)."""
+    path = out / "digests.json"
+    digests = json.loads(path.read_text())
+    for name, entry in digests.items():
+        d = out / name
+        kept = {k: v for k, v in entry.items() if k.startswith("<")}
+        if d.is_dir():
+            kept.update({str(f.relative_to(d)): file_digest(f, d) for f in sorted(d.rglob("*")) if f.is_file()})
+        digests[name] = kept
+    path.write_text(json.dumps(digests, indent=1, sort_keys=True), encoding="utf-8")
+    print(f"rehashed {len(digests)} jobs in {path}")
+    return 0
+
+
 def compare(a: Path, b: Path, only: str | None = None) -> int:
     da, db = json.loads(a.read_text()), json.loads(b.read_text())
     bad = 0
@@ -175,7 +191,11 @@ def main(argv=None) -> int:
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
     c.add_argument("--only", help="compare only the jobs whose name matches this regular expression")
+    h = sub.add_parser("rehash", help="recompute the file digests of the jobs already in OUT")
+    h.add_argument("out", type=Path)
     args = ap.parse_args(argv)
+    if args.cmd == "rehash":
+        return rehash(args.out)
     return run(args.out, args.only) if args.cmd == "run" else compare(args.a, args.b, args.only)
 
 

@@ -33,8 +33,9 @@ from . import worker
 from .store import Journal, Layout, finish_attempt
 
 if TYPE_CHECKING:
+    from ._plan import RunPlan
+    from ._progress import _Tracker
     from .manifest import Job
-    from .runner import RunPlan, _Tracker
 
 __all__ = ["require_ray", "check_address", "ray_attempt", "run_ray"]
 

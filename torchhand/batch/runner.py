@@ -9,6 +9,9 @@ So ``workers × threads ≤ CPUs`` unless both are given explicitly.
 
 Local pool: one worker subprocess (:mod:`.worker`) per running job, at most ``workers`` at a time, polled by this
 single-threaded loop. A worker that crashes or is killed is a failed attempt, recorded; the batch goes on.
+
+Modules: ``_plan`` (:class:`RunPlan`, :func:`plan_run`, the rule above), ``_progress`` (:class:`Counts` and the
+tracker both backends report to); this module holds the local pool and :func:`run_batch`, re-exporting the plan.
 """
 
 from __future__ import annotations
@@ -18,83 +21,16 @@ import fcntl
 import os
 import subprocess
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InputValueError
 from . import worker
+from ._plan import RunPlan, plan_run, usable_cpus
+from ._progress import Counts, _Tracker
 from .manifest import Job, Manifest
 from .store import Journal, Layout, finish_attempt, open_batch, recover
 
 __all__ = ["RunPlan", "Counts", "BatchOutcome", "usable_cpus", "plan_run", "run_batch"]
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (its affinity mask), else ``os.cpu_count()``."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
-@dataclass(frozen=True)
-class RunPlan:
-    """How a batch runs (not part of any job's id).
-
-    workers: jobs at a time; threads: torch threads per job; cpus: CPUs usable here
-    device: "cpu" or "cuda"; backend: "local" or "ray" (ray_address: "local" for ``--ray auto``, else the address)
-    gpus: CUDA devices given to local workers round-robin (``CUDA_VISIBLE_DEVICES``), empty for the CPU
-    """
-
-    workers: int
-    threads: int
-    cpus: int
-    device: str = "cpu"
-    backend: str = "local"
-    ray_address: str | None = None
-    gpus: tuple[str, ...] = ()
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-def plan_run(*, workers: int | None = None, threads: int | None = None, device: str = "cpu",
-             ray: str | None = None, cpus: int | None = None, gpus: tuple[str, ...] = ()) -> RunPlan:
-    """The run's plan (module docstring). ``ray``: None (local pool), ``"auto"`` (a local Ray instance) or a
-    cluster address, where ``workers`` caps the jobs in flight (default: what the cluster's CPUs hold)."""
-    for name, value in (("--workers", workers), ("--threads", threads)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise InputValueError(f"{name}: expected an integer >= 1, got {value}")
-    if device not in ("cpu", "cuda"):
-        raise InputValueError(f"--device: expected cpu or cuda, got {device!r}")
-    cpus = cpus or usable_cpus()
-    if ray is not None and ray != "auto":
-        return RunPlan(workers=workers or 0, threads=threads or 1, cpus=cpus, device=device, backend="ray",
-                       ray_address=ray)
-    if workers is None:
-        workers = len(gpus) if device == "cuda" and gpus else max(1, cpus // (threads or 1))
-    threads = threads or max(1, cpus // workers)
-    return RunPlan(workers=workers, threads=threads, cpus=cpus, device=device,
-                   backend="ray" if ray else "local", ray_address="local" if ray else None,
-                   gpus=gpus if device == "cuda" else ())
-
-
-@dataclass(frozen=True)
-class Counts:
-    """Progress of a run, after an event.
-
-    total: jobs in the batch; done: finished (earlier runs included); running: attempts running; failed: attempts
-    failed in this run; ran: attempts ended in this run; elapsed_s: seconds since the run started; eta_s:
-    estimated seconds left (from the rate of attempts ending in this run; None before the first)
-    """
-
-    total: int
-    done: int = 0
-    running: int = 0
-    failed: int = 0
-    ran: int = 0
-    elapsed_s: float = 0.0
-    eta_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -112,39 +48,6 @@ class BatchOutcome:
     summary: tuple[Path, ...]
     interrupted: bool = False
     unsuitable: tuple[str, ...] = ()
-
-
-class _Tracker:
-    """Counts, ETA and the event callback ``notify(kind, job_id, record, counts)``."""
-
-    def __init__(self, total: int, done: int, notify):
-        self.counts = Counts(total=total, done=done)
-        self.t0 = time.monotonic()
-        self.notify = notify or (lambda *a: None)
-        self.finished: list[str] = []
-        self.failed: list[str] = []
-        self.unsuitable: list[str] = []
-
-    def event(self, kind: str, job_id: str, record: dict | None = None) -> None:
-        c = self.counts
-        done, running, failed, ran = c.done, c.running, c.failed, c.ran
-        if kind == "start":
-            running += 1
-        elif kind in ("finish", "fail", "discard"):
-            running, ran = running - 1, ran + 1
-            if kind in ("finish", "discard"):          # discard: the job had been finished meanwhile
-                done += 1
-                self.finished.append(job_id)
-                if (record or {}).get("outcome") == "unsuitable":
-                    self.unsuitable.append(job_id)
-            else:
-                failed += 1
-                self.failed.append(job_id)
-        elapsed = time.monotonic() - self.t0
-        left = c.total - done - failed
-        eta = 0.0 if not left else elapsed / ran * left if ran else None
-        self.counts = replace(c, done=done, running=running, failed=failed, ran=ran, elapsed_s=elapsed, eta_s=eta)
-        self.notify(kind, job_id, record or {}, self.counts)
 
 
 def run_local(layout: Layout, journal: Journal, todo: list[tuple[Job, int]], plan: RunPlan,

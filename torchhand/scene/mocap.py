@@ -32,124 +32,43 @@ Hand frame (the wrist joint's local axes are not torchhand's hand frame)
 
 Frames: ``frame_range = (start, stop)`` selects source frames ``start <= k < stop`` before resampling to ``fps``.
 The source frame rate is ``1 / Frame Time``, rounded to an integer when it is within 1e-3 of one.
+
+Modules
+    ``_mocap_convert``  :func:`convert_transforms` and :func:`hand_frame_rotation` (the two rules above)
+    ``_mocap_sources``  reading the wrist and object sources and their shared timing
+    this module         :func:`import_mocap_scene` (sources -> converted tracks -> scene) and :func:`manipnet_scene`
 """
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from .bvh import BVHClip, read_bvh
-from ..errors import FileFormatError, InputValueError, MissingFileError, ShapeError
+from ..errors import InputValueError, MissingFileError
 from ..geometry.objects import RigidObject, load_object
 from ._model import Scene
+from ._mocap_convert import _check_choice, convert_transforms, hand_frame_rotation
+from ._mocap_sources import _ObjectSource, _positive, _read_object, _read_wrists, _timing, _Timing, _Wrist
 from ._parts import SIDES, Environment, HandTrack, MocapSource
 
 __all__ = ["import_mocap_scene", "manipnet_scene", "hand_frame_rotation", "convert_transforms"]
 
-_FINGER_KEYS = {
-    "middle": ("middle", "mid"),
-    "index": ("index",),
-    "pinky": ("pinky", "pinkie", "little"),
-}
 
+@dataclass(frozen=True)
+class _Tracks:
+    """The sources converted into the z-up world (metres): ``object_pose`` (F', 4, 4) over the kept frames, the
+    ``hands`` (one :class:`HandTrack` per side, right first), and per side the wrist's source ``(side, resolved BVH
+    path, joint name)`` and its fixed rotation ``(side, R_fix (3, 3))`` for :class:`MocapSource`."""
 
-def convert_transforms(G: torch.Tensor, *, units_scale: float = 1.0, up_axis: str = "y",
-                       handedness: str = "right") -> torch.Tensor:
-    """Source transforms to torchhand world transforms (module docstring, steps 1-3).
-
-    Args:
-        G: source transforms, (..., 4, 4), file units and axes
-        units_scale: metres per file unit
-        up_axis: "y" or "z", the source's up axis
-        handedness: "right" or "left", the source's coordinate handedness
-
-    Returns:
-        transforms in the z-up world, (..., 4, 4), metres, dtype of ``G``
-    """
-    _check_choice(up_axis, "up_axis", ("y", "z"))
-    _check_choice(handedness, "handedness", ("right", "left"))
-    out = G.clone()
-    if handedness == "left":
-        M = torch.diag(G.new_tensor([-1.0, 1.0, 1.0, 1.0]))
-        out = M @ out @ M
-    out[..., :3, 3] = out[..., :3, 3] * units_scale
-    if up_axis == "y":
-        C = G.new_tensor([[1.0, 0, 0, 0], [0, 0, -1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
-        out = C @ out
-    return out
-
-
-def hand_frame_rotation(clip: BVHClip, wrist: int, side: str, *, handedness: str = "right",
-                        up_axis: str = "y") -> tuple[np.ndarray, float | None, str]:
-    """The fixed rotation from the wrist joint's local axes to the hand frame (module docstring).
-
-    Args:
-        clip: the BVH
-        wrist: index of the wrist joint
-        side: "right" or "left"
-        handedness: the source's handedness ("left" mirrors the rest offsets first)
-        up_axis: the source's up axis (used by the fallback rule only)
-
-    Returns:
-        R_fix: hand axes (columns x, y, z) in the wrist joint's (mirrored) local coordinates, (3, 3)
-        length: rest wrist-to-middle-fingertip distance in file units, or None (fallback rule)
-        rule: "fingers" or "fallback"
-    """
-    rest_T = clip.rest_transforms().numpy()
-    if handedness == "left":
-        M = np.diag([-1.0, 1.0, 1.0, 1.0])
-        rest_T = M @ rest_T @ M
-    rest = rest_T[:, :3, 3]
-    R_rest = rest_T[wrist, :3, :3]  # identity for BVH (zero channels), kept for generality
-    origin = rest[wrist]
-    chains = {k: _finger_chain(clip, wrist, keys) for k, keys in _FINGER_KEYS.items()}
-    if all(chains.values()):
-        depth = min(len(c) for c in chains.values())
-        for k in range(depth):
-            mid = rest[chains["middle"][k]] - origin
-            thumbward = rest[chains["index"][k]] - rest[chains["pinky"][k]]
-            if np.linalg.norm(mid) > 1e-9 and np.linalg.norm(thumbward) > 0.25 * np.linalg.norm(mid):
-                x = _unit(mid)
-                y = thumbward - x * float(x @ thumbward)
-                if np.linalg.norm(y) > 1e-6 * np.linalg.norm(thumbward):
-                    y = _unit(y) if side == "right" else -_unit(y)
-                    R_world = np.stack([x, y, np.cross(x, y)], axis=1)
-                    tip = _deepest(clip, chains["middle"][0])
-                    length = float(np.linalg.norm(rest[tip] - origin))
-                    return R_rest.T @ R_world, (length if length > 0 else None), "fingers"
-    # fallback: forearm direction and palms down (or palms in for hanging arms)
-    kids = clip.children(wrist)
-    if kids and np.linalg.norm(rest[kids[0]] - origin) > 1e-9:
-        x = _unit(rest[kids[0]] - origin)
-    elif clip.parents[wrist] >= 0 and np.linalg.norm(origin - rest[clip.parents[wrist]]) > 1e-9:
-        x = _unit(origin - rest[clip.parents[wrist]])
-    else:
-        raise InputValueError(
-            f"wrist_joint: cannot tell the forearm direction of '{clip.names[wrist]}' in {clip.path} "
-            "(no child, End Site or parent at a distance)"
-        )
-    up = np.array([0.0, 1.0, 0.0]) if up_axis == "y" else np.array([0.0, 0.0, 1.0])
-    if abs(float(x @ up)) < math.cos(math.radians(30.0)):
-        z = _unit(up - x * float(x @ up))
-    else:
-        root = rest[0]
-        lateral = origin - root
-        lateral = lateral - up * float(up @ lateral)
-        lateral = lateral - x * float(x @ lateral)
-        if np.linalg.norm(lateral) < 1e-9:
-            raise InputValueError(
-                f"wrist_joint: '{clip.names[wrist]}' in {clip.path} hangs vertically on the body's midline; "
-                "cannot guess the palm direction"
-            )
-        z = _unit(lateral)
-    y = np.cross(z, x)
-    return R_rest.T @ np.stack([x, y, z], axis=1), None, "fallback"
+    object_pose: torch.Tensor
+    hands: tuple[HandTrack, ...]
+    wrists: tuple[tuple[str, str, str], ...]
+    rotations: tuple[tuple[str, np.ndarray], ...]
 
 
 def import_mocap_scene(
@@ -222,78 +141,21 @@ def import_mocap_scene(
     if (object_bvh is None) == (object_npz is None):
         raise InputValueError("object_bvh, object_npz: give exactly one of them")
 
-    # -- wrists -------------------------------------------------------------------------------------------------
-    sources: dict[str, tuple[BVHClip, int]] = {}
-    if hand_bvh is not None:
-        paths = _per_side(hand_bvh, side, "hand_bvh")
-        joints = _per_side(wrist_joint, side, "wrist_joint") if wrist_joint is not None else {}
-        for s, path in paths.items():
-            tick(f"reading {Path(path).name}")
-            clip = read_bvh(path)
-            sources[s] = (clip, clip.joint_index(joints[s]) if s in joints else _first_root(clip))
-    else:
-        if wrist_joint is None:
-            raise InputValueError("wrist_joint: required with body_bvh (a joint name, or a mapping side -> name)")
-        tick(f"reading {Path(body_bvh).name}")
-        clip = read_bvh(body_bvh)
-        for s, jname in _per_side(wrist_joint, side, "wrist_joint").items():
-            sources[s] = (clip, clip.joint_index(jname))
-
-    # -- object -------------------------------------------------------------------------------------------------
-    if object_bvh is not None:
-        tick(f"reading {Path(object_bvh).name}")
-        oclip = read_bvh(object_bvh)
-        oj = oclip.joint_index(object_joint) if object_joint is not None else _first_root(oclip)
-        F_obj, frame_time = oclip.num_frames, oclip.frame_time
-    else:
-        oclip, oj = None, -1
-        raw_obj = _read_object_npz(Path(object_npz))
-        F_obj, frame_time = raw_obj.shape[0], None
-    clips = [c for c, _ in sources.values()] + ([oclip] if oclip is not None else [])
-    for c in clips:
-        if c.num_frames != F_obj:
-            raise ShapeError(f"{c.path}: has {c.num_frames} frames, the object trajectory has {F_obj}")
-    frame_time = frame_time if frame_time is not None else clips[0].frame_time
-    for c in clips:
-        if abs(c.frame_time - frame_time) > 1e-6 * frame_time:
-            raise InputValueError(f"{c.path}: frame time {c.frame_time} differs from {frame_time}")
-    src_fps = 1.0 / frame_time
-    if abs(src_fps - round(src_fps)) < 1e-3:
-        src_fps = float(round(src_fps))
-
-    start, stop = _frame_range(frame_range, F_obj)
-    frames = slice(start, stop)
-
+    wrists = _read_wrists(hand_bvh, body_bvh, wrist_joint, side, tick)
+    obj_source = _read_object(object_bvh, object_joint, object_npz, tick)
+    timing = _timing(wrists, obj_source, frame_range)
     tick("converting poses")
-    conv = dict(units_scale=units_scale, up_axis=up_axis, handedness=handedness)
-    if oclip is not None:
-        obj_pose = convert_transforms(oclip.global_transforms(frames)[:, oj], **conv)
-    else:
-        obj_pose = convert_transforms(raw_obj[frames], **conv)
-    hands, wrists, rotations = [], [], []
-    for s in SIDES:
-        if s not in sources:
-            continue
-        clip, j = sources[s]
-        R_fix, length, _ = hand_frame_rotation(clip, j, s, handedness=handedness, up_axis=up_axis)
-        wrists.append((s, str(Path(clip.path).resolve()), clip.names[j]))
-        rotations.append((s, np.asarray(R_fix, dtype=np.float64)))
-        fix = torch.eye(4, dtype=torch.float64)
-        fix[:3, :3] = torch.as_tensor(R_fix)
-        wrist = convert_transforms(clip.global_transforms(frames)[:, j], **conv) @ fix
-        hands.append(HandTrack(side=s, wrist_pose=wrist,
-                               length=0.19 if length is None else length * units_scale))
-
+    tracks = _convert_tracks(wrists, obj_source, slice(timing.start, timing.stop), units_scale=units_scale,
+                             up_axis=up_axis, handedness=handedness)
     tick(f"loading {Path(object_mesh).name}")
     obj = _load_mesh(Path(object_mesh), mass, density, mesh_scale, mirror_mesh)
-    environment = _environment(table_height, table_friction, obj, obj_pose)
-    source = MocapSource(kind="body" if body_bvh is not None else "hand", wrists=tuple(wrists), fps=src_fps,
-                         frames=F_obj, first_frame=float(start), units_scale=units_scale, up_axis=up_axis,
-                         handedness=handedness, hand_rotation=tuple(rotations))
-    scene = Scene(name=name or Path(object_mesh).stem, object=obj, object_pose=obj_pose, fps=src_fps,
-                  hands=tuple(hands), friction=friction, environment=environment, description=description,
+    environment = _environment(table_height, table_friction, obj, tracks.object_pose)
+    source = _mocap_source("body" if body_bvh is not None else "hand", tracks, timing, units_scale=units_scale,
+                           up_axis=up_axis, handedness=handedness)
+    scene = Scene(name=name or Path(object_mesh).stem, object=obj, object_pose=tracks.object_pose, fps=timing.fps,
+                  hands=tracks.hands, friction=friction, environment=environment, description=description,
                   source=source)
-    if fps is not None and float(fps) != src_fps:
+    if fps is not None and float(fps) != timing.fps:
         tick("resampling")
         scene = scene.resample(fps)
     return scene.validate()
@@ -338,95 +200,39 @@ def manipnet_scene(root_dir: str | os.PathLike, frame_range: tuple[int, int] | N
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# helpers
+# stages
 
 
-def _check_choice(value, name: str, choices: tuple[str, ...]) -> None:
-    if value not in choices:
-        raise InputValueError(f"{name}: expected one of {', '.join(repr(c) for c in choices)}, got {value!r}")
+def _convert_tracks(wrists: dict[str, _Wrist], obj: _ObjectSource, frames: slice, *, units_scale: float,
+                    up_axis: str, handedness: str) -> _Tracks:
+    """The object's poses and each side's wrist track over ``frames``, in the z-up world (module docstring)."""
+    conv = dict(units_scale=units_scale, up_axis=up_axis, handedness=handedness)
+    if obj.clip is not None:
+        obj_pose = convert_transforms(obj.clip.global_transforms(frames)[:, obj.joint], **conv)
+    else:
+        obj_pose = convert_transforms(obj.poses[frames], **conv)
+    hands, sources, rotations = [], [], []
+    for s in SIDES:
+        if s not in wrists:
+            continue
+        clip, j = wrists[s].clip, wrists[s].joint
+        R_fix, length, _ = hand_frame_rotation(clip, j, s, handedness=handedness, up_axis=up_axis)
+        sources.append((s, str(Path(clip.path).resolve()), clip.names[j]))
+        rotations.append((s, np.asarray(R_fix, dtype=np.float64)))
+        fix = torch.eye(4, dtype=torch.float64)
+        fix[:3, :3] = torch.as_tensor(R_fix)
+        wrist = convert_transforms(clip.global_transforms(frames)[:, j], **conv) @ fix
+        hands.append(HandTrack(side=s, wrist_pose=wrist,
+                               length=0.19 if length is None else length * units_scale))
+    return _Tracks(object_pose=obj_pose, hands=tuple(hands), wrists=tuple(sources), rotations=tuple(rotations))
 
 
-def _positive(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise InputValueError(f"{name}: expected a finite positive number, got {value!r}")
-    return float(value)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
-
-
-def _per_side(value, side: str, name: str) -> dict[str, object]:
-    if isinstance(value, Mapping):
-        out = dict(value)
-        if not out or any(k not in SIDES for k in out):
-            raise InputValueError(f"{name}: mapping keys must be 'right' and/or 'left', got {list(out)}")
-        return out
-    return {side: value}
-
-
-def _first_root(clip: BVHClip) -> int:
-    return clip.parents.index(-1)
-
-
-def _finger_chain(clip: BVHClip, wrist: int, keys: tuple[str, ...]) -> list[int]:
-    """Joints of the first finger chain below ``wrist`` whose names contain one of ``keys`` (breadth first)."""
-    def matches(j: int) -> bool:
-        n = clip.names[j].lower()
-        if keys == ("middle", "mid"):
-            return "middle" in n or "mid" in n.replace("middle", "")
-        return any(k in n for k in keys)
-
-    queue = list(clip.children(wrist))
-    while queue:
-        j = queue.pop(0)
-        if matches(j) and not clip.is_end_site[j]:
-            chain = [j]
-            while True:
-                nxt = [c for c in clip.children(chain[-1]) if not clip.is_end_site[c]]
-                if not nxt:
-                    break
-                chain.append(nxt[0])
-            return chain
-        queue.extend(clip.children(j))
-    return []
-
-
-def _deepest(clip: BVHClip, j: int) -> int:
-    while clip.children(j):
-        j = clip.children(j)[0]
-    return j
-
-
-def _frame_range(frame_range, F: int) -> tuple[int, int]:
-    if frame_range is None:
-        return 0, F
-    try:
-        start, stop = (int(v) for v in frame_range)
-    except (TypeError, ValueError):
-        raise InputValueError(f"frame_range: expected (start, stop), got {frame_range!r}") from None
-    if not 0 <= start < stop <= F:
-        raise InputValueError(f"frame_range: expected 0 <= start < stop <= {F} (source frames), got {frame_range}")
-    if stop - start < 2:
-        raise InputValueError(f"frame_range: needs at least 2 frames, got {frame_range}")
-    return start, stop
-
-
-def _read_object_npz(path: Path) -> torch.Tensor:
-    import zipfile
-
-    if not path.is_file():
-        raise MissingFileError(f"object_npz: '{path}' does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if "object_pose" not in data.files:
-                raise FileFormatError(f"{path}: missing array 'object_pose'; has {', '.join(data.files)}")
-            a = data["object_pose"]
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise FileFormatError(f"{path}: cannot read npz: {type(err).__name__}: {err}") from None
-    if a.dtype.kind not in "fiu" or a.ndim != 3 or a.shape[1:] != (4, 4):
-        raise ShapeError(f"{path}: object_pose: expected a numeric (F, 4, 4) array, got {a.dtype} {a.shape}")
-    return torch.tensor(a, dtype=torch.float64)
+def _mocap_source(kind: str, tracks: _Tracks, timing: _Timing, *, units_scale: float, up_axis: str,
+                  handedness: str) -> MocapSource:
+    """Where the scene came from (:class:`MocapSource`)."""
+    return MocapSource(kind=kind, wrists=tracks.wrists, fps=timing.fps, frames=timing.frames,
+                       first_frame=float(timing.start), units_scale=units_scale, up_axis=up_axis,
+                       handedness=handedness, hand_rotation=tracks.rotations)
 
 
 def _load_mesh(path: Path, mass, density, scale: float, mirror: bool) -> RigidObject:

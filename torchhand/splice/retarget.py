@@ -54,30 +54,27 @@ Insertion (:func:`insert_fingers`)
     joints in index order as :attr:`BVHClip.channel_start` assumes. Joints after the insertion point shift by the
     number of new joints; ``column_map[c]`` is the new column of the body's column ``c``. Names: the hand's names,
     prefixed ``R_``/``L_`` when they carry no side (ManipNet), with ``_hand`` appended on a clash with a body name.
+
+Modules: ``_hand_frame`` (:func:`hand_frame`), ``_insert_fingers`` (:func:`insert_fingers`); this module matches
+the joints of two rigs and carries the rotations.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from ..scene.bvh import BVHClip
 from ..errors import InputTypeError, InputValueError, ShapeError
-from .rigs import FINGERS, SIDES, Arm, Rig, _name_side, rest_positions
+from ..scene.bvh import BVHClip
+from ._hand_frame import _MIRROR, _check_choice, hand_frame
+from ._insert_fingers import FOREARM_LENGTH, HAND_LENGTH, Inserted, insert_fingers
+from ._rig_record import SIDES, Rig
+from .rig_hierarchy import FINGERS, rest_positions
 
 __all__ = ["Match", "Retargeted", "Inserted", "HAND_LENGTH", "FOREARM_LENGTH", "hand_frame", "finger_matches",
            "retarget_fingers", "insert_fingers"]
-
-HAND_LENGTH = 0.19
-"""Wrist to middle-fingertip length of the reference hand, metres."""
-FOREARM_LENGTH = 0.26
-"""Elbow to wrist length of the reference forearm, metres (the inserted hand is scaled by forearm / this)."""
-
-_MIRROR = np.diag([-1.0, 1.0, 1.0])
 
 
 class Match(NamedTuple):
@@ -99,95 +96,6 @@ class Retargeted(NamedTuple):
 
     rotations: dict[int, torch.Tensor]
     matches: list[Match]
-
-
-class Inserted(NamedTuple):
-    """What :func:`insert_fingers` returns.
-
-    clip: the body with the finger joints added (new columns zero)
-    rig: the body's rig with that side's fingers, indices into ``clip``
-    column_map: new column of each of the body's columns, (C_old,) int64
-    """
-
-    clip: BVHClip
-    rig: Rig
-    column_map: np.ndarray
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# hand frame
-
-
-def hand_frame(clip: BVHClip, rig: Rig, side: str, *, handedness: str = "right", up_axis: str | None = None
-               ) -> np.ndarray:
-    """The canonical hand frame at rest, (3, 3): columns x, y, z in the file's rest coordinates (mirrored for a
-    left-handed file).
-
-    With fingers: x = wrist -> middle knuckle (the (middle, 1) joint; other knuckles when it is missing),
-    y = pinky knuckle -> index knuckle made orthogonal to x for a right hand, its opposite for a left hand,
-    z = x × y (the back of the hand; the palm faces -z), as :func:`torchhand.scene.mocap.hand_frame_rotation` but from
-    the recognised knuckles. Without fingers: that function's fallback (x toward the wrist's child or End Site,
-    z up for a horizontal arm, away from the root for a hanging one; ``up_axis`` "y"/"z", guessed as the axis
-    along which the trunk lies above the root when None).
-    """
-    _check_choice(handedness, "handedness", SIDES)
-    arm = rig.arm(side)
-    rest = rest_positions(clip, handedness)
-    w = rest[arm.wrist]
-    fingers = rig.fingers.get(side, {})
-    knuckle = {f: next((fingers[(f, o)] for o in (1, 2, 0) if (f, o) in fingers), None) for f in FINGERS}
-    ahead = [knuckle[f] for f in ("middle", "index", "ring") if knuckle[f] is not None]
-    across = [(a, b) for a in ("index", "middle") for b in ("pinky", "ring")
-              if a != b and knuckle[a] is not None and knuckle[b] is not None]
-    if ahead and across:
-        x = _unit(rest[ahead[0]] - w)
-        t = rest[knuckle[across[0][0]]] - rest[knuckle[across[0][1]]]
-        y = t - x * float(x @ t)
-        if np.linalg.norm(x) > 0 and np.linalg.norm(y) > 1e-6 * max(np.linalg.norm(t), 1e-300):
-            y = _unit(y) if side == "right" else -_unit(y)
-            return np.stack([x, y, np.cross(x, y)], axis=1)
-    return _fallback_frame(clip, arm, rest, up_axis)
-
-
-def _fallback_frame(clip: BVHClip, arm: Arm, rest: np.ndarray, up_axis: str | None) -> np.ndarray:
-    w = rest[arm.wrist]
-    kids = [k for k in range(clip.num_joints) if clip.parents[k] == arm.wrist and np.linalg.norm(rest[k] - w) > 1e-9]
-    par = clip.parents[arm.wrist]
-    if kids:
-        x = _unit(rest[kids[0]] - w)
-    elif par >= 0 and np.linalg.norm(w - rest[par]) > 1e-9:
-        x = _unit(w - rest[par])
-    else:
-        raise InputValueError(f"hand frame: cannot tell the hand's direction at '{clip.names[arm.wrist]}' in "
-                              f"{clip.path} (no finger joints, no child, End Site or parent at a distance)")
-    if up_axis is None:
-        up_axis = _guess_up(clip, arm, rest)
-    _check_choice(up_axis, "up_axis", ("y", "z"))
-    up = np.array([0.0, 1.0, 0.0]) if up_axis == "y" else np.array([0.0, 0.0, 1.0])
-    if abs(float(x @ up)) < math.cos(math.radians(30.0)):
-        z = _unit(up - x * float(x @ up))
-    else:
-        root = arm.wrist
-        while clip.parents[root] >= 0:
-            root = clip.parents[root]
-        lateral = w - rest[root]
-        lateral = lateral - up * float(up @ lateral)
-        lateral = lateral - x * float(x @ lateral)
-        if np.linalg.norm(lateral) < 1e-9:
-            raise InputValueError(f"hand frame: '{clip.names[arm.wrist]}' in {clip.path} hangs vertically on the "
-                                  "body's midline; cannot guess the palm direction")
-        z = _unit(lateral)
-    return np.stack([x, np.cross(z, x), z], axis=1)
-
-
-def _guess_up(clip: BVHClip, arm: Arm, rest: np.ndarray) -> str:
-    if arm.trunk is None:
-        return "y"
-    root = arm.trunk
-    while clip.parents[root] >= 0:
-        root = clip.parents[root]
-    d = rest[arm.trunk] - rest[root]
-    return "z" if abs(d[2]) > abs(d[1]) else "y"
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -333,169 +241,3 @@ def _min_rotation(a: np.ndarray, b: np.ndarray, default: np.ndarray) -> np.ndarr
         return 2.0 * np.outer(n, n) - np.eye(3)
     K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     return np.eye(3) + K + K @ K / (1.0 + c)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# insertion
-
-
-def insert_fingers(body_clip: BVHClip, body_rig: Rig, side: str, hand_clip: BVHClip, hand_rig: Rig, *,
-                   hand_handedness: str = "right", body_handedness: str = "right", up_axis: str | None = None
-                   ) -> Inserted:
-    """Add the hand rig's ``side`` finger subtree under the body's wrist (module docstring).
-
-    Args:
-        body_clip, body_rig: a body whose ``side`` has no finger joints (its arm needs an elbow or forearm joint)
-        side: "right" or "left"
-        hand_clip, hand_rig: the rig whose fingers are copied
-        hand_handedness, body_handedness: "right", or "left" for a left-handed file
-        up_axis: the body file's up axis for its hand frame ("y"/"z"), guessed from the trunk when None
-
-    Returns:
-        :class:`Inserted` (clip, rig, column_map)
-    """
-    _check_choice(side, "side", SIDES)
-    _check_choice(hand_handedness, "hand_handedness", SIDES)
-    _check_choice(body_handedness, "body_handedness", SIDES)
-    barm = body_rig.arm(side)
-    harm = hand_rig.arm(side)
-    if body_rig.has_fingers(side):
-        raise InputValueError(f"side: {body_clip.path} already has {side}-hand finger joints; retarget onto them")
-    if not hand_rig.has_fingers(side):
-        raise InputValueError(f"side: {hand_clip.path} has no {side}-hand finger joints to insert")
-    brest = rest_positions(body_clip, body_handedness)
-    hrest = rest_positions(hand_clip, hand_handedness)
-    elbow = barm.elbow if barm.elbow is not None else barm.forearm
-    forearm = float(np.linalg.norm(brest[barm.wrist] - brest[elbow])) if elbow is not None else 0.0
-    if forearm <= 0:
-        raise InputValueError(f"side: the {side} arm of {body_clip.path} has no elbow joint apart from its wrist "
-                              "to size the hand by")
-    tips = hand_rig.tips.get(side, {})
-    tip = tips.get("middle")
-    if tip is not None:
-        hand_len = float(np.linalg.norm(hrest[tip] - hrest[harm.wrist]))
-    else:
-        hand_len = max(float(np.linalg.norm(hrest[t] - hrest[harm.wrist])) for t in tips.values())
-    if hand_len <= 0:
-        raise InputValueError(f"hand: cannot measure the hand of {hand_clip.path} (fingertips at the wrist)")
-    scale = HAND_LENGTH / FOREARM_LENGTH * forearm / hand_len
-    Hh = hand_frame(hand_clip, hand_rig, side, handedness=hand_handedness)
-    Hb = hand_frame(body_clip, body_rig, side, handedness=body_handedness, up_axis=up_axis)
-    Mh = _MIRROR if hand_handedness == "left" else np.eye(3)
-    Mb = _MIRROR if body_handedness == "left" else np.eye(3)
-    R = Mb @ Hb @ Hh.T @ Mh
-
-    sub = _finger_subtree(hand_clip, hand_rig, side)
-    new_names = _new_names(hand_clip, [k for k in sub if not hand_clip.is_end_site[k]], side, set(body_clip.names))
-    at = max(_subtree(body_clip.parents, barm.wrist)) + 1
-    N = len(sub)
-    old = lambda i: i if i < at else i + N                       # noqa: E731
-    pos = {k: at + n for n, k in enumerate(sub)}
-
-    names, parents, offsets, channels, ends = [], [], [], [], []
-    for k in sub:
-        p = hand_clip.parents[k]
-        if hand_clip.is_end_site[k]:
-            names.append(new_names[p] + "_end")
-        else:
-            names.append(new_names[k])
-        parents.append(barm.wrist if p == harm.wrist else pos[p])
-        offsets.append(scale * (R @ hand_clip.offsets[k]))
-        channels.append(tuple(c for c in hand_clip.channels[k] if c.endswith("rotation")))
-        ends.append(hand_clip.is_end_site[k])
-    bn, bp = list(body_clip.names), list(body_clip.parents)
-    all_names = tuple(bn[:at] + names + bn[at:])
-    all_parents = tuple([old(p) if p >= 0 else -1 for p in bp[:at]] + parents
-                        + [old(p) if p >= 0 else -1 for p in bp[at:]])
-    all_offsets = np.concatenate([body_clip.offsets[:at], np.asarray(offsets).reshape(-1, 3),
-                                  body_clip.offsets[at:]])
-    all_channels = tuple(list(body_clip.channels[:at]) + channels + list(body_clip.channels[at:]))
-    all_ends = tuple(list(body_clip.is_end_site[:at]) + ends + list(body_clip.is_end_site[at:]))
-    starts = body_clip.channel_start
-    c_at = starts[at] if at < body_clip.num_joints else body_clip.motion.shape[1]
-    c_new = sum(len(c) for c in channels)
-    C = body_clip.motion.shape[1]
-    column_map = np.arange(C, dtype=np.int64)
-    column_map[c_at:] += c_new
-    motion = np.zeros((body_clip.num_frames, C + c_new), dtype=np.float64)
-    motion[:, column_map] = body_clip.motion
-    all_offsets.setflags(write=False)
-    motion.setflags(write=False)
-    column_map.setflags(write=False)
-    clip = replace(body_clip, names=all_names, parents=all_parents, offsets=all_offsets, channels=all_channels,
-                   is_end_site=all_ends, motion=motion)
-    # The wrist's End Site (a finger-less rig's hand bone) would now run through the palm: the fingers say where
-    # the hand ends. End Sites have no channels, so the motion columns do not move.
-    drop = {old(j) for j in body_clip.children(barm.wrist) if body_clip.is_end_site[j]}
-    keep = [i for i in range(clip.num_joints) if i not in drop]
-    idx = {o: n for n, o in enumerate(keep)}
-    offs = np.ascontiguousarray(clip.offsets[keep])
-    offs.setflags(write=False)
-    clip = replace(clip, names=tuple(clip.names[i] for i in keep),
-                   parents=tuple(idx[clip.parents[i]] if clip.parents[i] >= 0 else -1 for i in keep),
-                   offsets=offs, channels=tuple(clip.channels[i] for i in keep),
-                   is_end_site=tuple(clip.is_end_site[i] for i in keep))
-    old2 = lambda i: idx[old(i)]                                 # noqa: E731
-    pos2 = {k: idx[v] for k, v in pos.items()}
-    return Inserted(clip=clip, rig=_inserted_rig(body_rig, hand_rig, side, clip, old2, pos2),
-                    column_map=column_map)
-
-
-def _subtree(parents, j: int) -> list[int]:
-    out = [j]
-    for k in range(j + 1, len(parents)):
-        if parents[k] in out:
-            out.append(k)
-    return out
-
-
-def _finger_subtree(clip: BVHClip, rig: Rig, side: str) -> list[int]:
-    """The wrist's child subtrees that hold the side's finger joints or tips, hierarchy order."""
-    w = rig.arms[side].wrist
-    wanted = set(rig.fingers[side].values()) | set(rig.tips.get(side, {}).values())
-    out = []
-    for c in (k for k in range(clip.num_joints) if clip.parents[k] == w):
-        sub = _subtree(clip.parents, c)
-        if wanted & set(sub):
-            out += sub
-    return sorted(out)
-
-
-def _new_names(clip: BVHClip, joints: list[int], side: str, taken: set[str]) -> dict[int, str]:
-    out = {}
-    for k in joints:
-        n = clip.names[k]
-        if _name_side(n) is None:
-            n = ("R_" if side == "right" else "L_") + n
-        while n in taken or n + "_end" in taken:
-            n += "_hand"
-        taken.add(n)
-        out[k] = n
-    return out
-
-
-def _inserted_rig(body: Rig, hand: Rig, side: str, clip: BVHClip, old, pos: dict[int, int]) -> Rig:
-    arms = {s: Arm(side=a.side, shoulder=_opt(old, a.shoulder), elbow=_opt(old, a.elbow), wrist=old(a.wrist),
-                   trunk=_opt(old, a.trunk), forearm=_opt(old, a.forearm)) for s, a in body.arms.items()}
-    fingers = {s: {k: old(j) for k, j in d.items()} for s, d in body.fingers.items()}
-    tips = {s: {k: old(j) for k, j in d.items()} for s, d in body.tips.items()}
-    fingers[side] = {k: pos[j] for k, j in hand.fingers[side].items()}
-    tips[side] = {k: pos[j] for k, j in hand.tips.get(side, {}).items() if j in pos}
-    how = dict(body.how)
-    how[f"{side} fingers"] = f"inserted from {hand.name}"
-    return Rig(name=f"{body.name}+{hand.name}", arms=arms, fingers=fingers, tips=tips, names=clip.names,
-               parents=clip.parents, is_end_site=clip.is_end_site, how=how)
-
-
-def _opt(f, j: int | None) -> int | None:
-    return None if j is None else f(j)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = float(np.linalg.norm(v))
-    return v / n if n > 0 else v
-
-
-def _check_choice(value, name: str, choices) -> None:
-    if value not in choices:
-        raise InputValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")

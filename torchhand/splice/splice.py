@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -26,7 +26,7 @@ from ..scene.bvh import BVHClip
 from ..errors import InputValueError
 from torchhand.kernels.status import SolverStatus
 from .align import Alignment, SpliceSettings, align
-from .markers import ArmJoints, guess_units, guess_up_axis, virtual_markers
+from .markers import ArmJoints, Markers, guess_units, guess_up_axis, virtual_markers
 from .retarget import insert_fingers, retarget_fingers
 from .retime import local_rotations, retime_motion, rotations_to_channels
 from .rigs import Rig, detect_rig
@@ -138,6 +138,59 @@ def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: Splic
         raise InputValueError(f"wrist: expected 'body' or 'hand', got {wrist!r}")
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
+    clips = _prepare(body, hand, side, wrist, body_rig, hand_rig, body_axes or ClipAxes(), hand_axes or ClipAxes(),
+                     say)
+    timed = _align_clips(clips, matches, settings, say)
+    say("resampling and retargeting")
+    carried = _carry(clips, timed.alignment, side, wrist)
+    report = _report(clips, timed, carried, side=side, wrist=wrist, settings=settings, matches=matches,
+                     t_start=t_start)
+    return SpliceResult(clip=carried.clip, alignment=timed.alignment, body_rig=carried.rig, hand_rig=clips.hand_rig,
+                        matches=carried.matches, report=report)
+
+
+@dataclass(frozen=True)
+class _Clips:
+    """The two clips read for alignment: the clips, their rigs and axes (``units`` metres per file unit, ``up``
+    axis), and the virtual markers of the arm being spliced (:class:`~torchhand.splice.markers.Markers`)."""
+
+    body: BVHClip
+    hand: BVHClip
+    body_rig: Rig
+    hand_rig: Rig
+    body_axes: ClipAxes
+    hand_axes: ClipAxes
+    body_units: float
+    body_up: str
+    hand_units: float
+    hand_up: str
+    body_markers: Markers
+    hand_markers: Markers
+
+
+@dataclass(frozen=True)
+class _Timed:
+    """The alignment of the two clips (one pair), its pass-1 status and the seconds it took."""
+
+    alignment: Alignment
+    status: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class _Carried:
+    """The body clip with the hand's finger rotations: the clip and its rig (fingers inserted when the body had
+    none: ``column_map`` then maps the body's columns, else None) and the carried joints."""
+
+    clip: BVHClip
+    rig: Rig
+    column_map: np.ndarray | None
+    matches: tuple
+
+
+def _prepare(body: BVHClip, hand: BVHClip, side: str, wrist: str, body_rig: str, hand_rig: str,
+             body_axes: ClipAxes, hand_axes: ClipAxes, say) -> _Clips:
+    """Both clips checked, their rigs recognised, units and up axes found, and the arm's virtual markers."""
     _check_clip(body, "body")
     _check_clip(hand, "hand")
     brig = detect_rig(body, body_rig)
@@ -148,8 +201,6 @@ def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: Splic
     if wrist == "hand" and getattr(hrig.arms.get(side), "forearm", None) is None:
         raise InputValueError(f"wrist: rig '{hrig.name}' of {hand.path} has no forearm joint above its {side} wrist, "
                               "so its wrist rotation is not relative to a forearm; use --wrist body")
-    body_axes = body_axes or ClipAxes()
-    hand_axes = hand_axes or ClipAxes()
     bu, bup = clip_axes(body, brig, side, body_axes)
     hu, hup = clip_axes(hand, hrig, side, hand_axes)
     say("markers")
@@ -157,6 +208,13 @@ def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: Splic
                          handedness=body_axes.handedness)
     mh = virtual_markers(hand, arm_joints(hand, hrig, side), units_scale=hu, up_axis=hup,
                          handedness=hand_axes.handedness)
+    return _Clips(body=body, hand=hand, body_rig=brig, hand_rig=hrig, body_axes=body_axes, hand_axes=hand_axes,
+                  body_units=bu, body_up=bup, hand_units=hu, hand_up=hup, body_markers=mb, hand_markers=mh)
+
+
+def _align_clips(clips: _Clips, matches, settings: SpliceSettings, say) -> _Timed:
+    """The two-pass alignment of the markers (one pair); InputValueError when pass 1 finds none."""
+    mb, mh = clips.body_markers, clips.hand_markers
     n, m = mb.num_frames, mh.num_frames
     anchors = None
     if matches:
@@ -177,50 +235,61 @@ def splice(body: BVHClip, hand: BVHClip, *, side: str = "right", settings: Splic
             f"no alignment within the band: hand {(m - 1) / mh.fps:.1f} s vs body {(n - 1) / mb.fps:.1f} s"
             + (f" with matching points {matches}" if matches else "")
             + "; widen --band1, add or loosen --match, or trim the clips")
+    return _Timed(alignment=al, status=status, seconds=t_align)
 
-    say("resampling and retargeting")
+
+def _carry(clips: _Clips, al: Alignment, side: str, wrist: str) -> _Carried:
+    """The hand's finger (and, with ``wrist="hand"``, wrist) rotations resampled at the aligned hand time and
+    carried onto the body's finger joints (inserted first when the body has none)."""
+    body, hand, brig, hrig = clips.body, clips.hand, clips.body_rig, clips.hand_rig
     out_clip, out_rig = body, brig
     column_map = None
     if not brig.fingers.get(side):
-        ins = insert_fingers(body, brig, side, hand, hrig, hand_handedness=hand_axes.handedness,
-                             body_handedness=body_axes.handedness, up_axis=bup)
+        ins = insert_fingers(body, brig, side, hand, hrig, hand_handedness=clips.hand_axes.handedness,
+                             body_handedness=clips.body_axes.handedness, up_axis=clips.body_up)
         out_clip, out_rig, column_map = ins.clip, ins.rig, ins.column_map
     hand_joints = sorted(set(hrig.finger_joints(side)) | ({hrig.arms[side].wrist} if wrist == "hand" else set()))
     hand_motion = retime_motion(hand, al.hand_frame[0].numpy(), joints=hand_joints)
     R_hand = local_rotations(hand, hand_motion)                                  # (n, Jh, 3, 3)
     carried = retarget_fingers(hand, hrig, out_clip, out_rig, side, R_hand,
-                               src_handedness=hand_axes.handedness, dst_handedness=body_axes.handedness,
+                               src_handedness=clips.hand_axes.handedness,
+                               dst_handedness=clips.body_axes.handedness,
                                include_wrist=(wrist == "hand"), align_rest=True)
     rotations, matched = carried.rotations, carried.matches
     motion = rotations_to_channels(out_clip, np.array(out_clip.motion), rotations)
     motion.setflags(write=False)
-    from dataclasses import replace
-    result_clip = replace(out_clip, motion=motion)
+    return _Carried(clip=replace(out_clip, motion=motion), rig=out_rig, column_map=column_map,
+                    matches=tuple(matched))
 
+
+def _report(clips: _Clips, timed: _Timed, carried: _Carried, *, side: str, wrist: str, settings: SpliceSettings,
+            matches, t_start: float) -> dict:
+    """``report.json`` of the splice (JSON-ready)."""
+    body, hand, mb, mh, al = clips.body, clips.hand, clips.body_markers, clips.hand_markers, timed.alignment
+    n, m = mb.num_frames, mh.num_frames
     hand_frame = al.hand_frame[0].numpy()
     speed = np.gradient(hand_frame / mh.fps, 1.0 / mb.fps) if n > 1 else np.ones(1)
-    report = {
+    return {
         "body": body.path, "hand": hand.path, "side": side,
-        "body_rig": brig.name, "hand_rig": hrig.name,
+        "body_rig": clips.body_rig.name, "hand_rig": clips.hand_rig.name,
         "body_frames": n, "hand_frames": m, "body_fps": mb.fps, "hand_fps": mh.fps,
-        "body_units_m": bu, "hand_units_m": hu, "body_up": bup, "hand_up": hup,
-        "body_handedness": body_axes.handedness, "hand_handedness": hand_axes.handedness,
+        "body_units_m": clips.body_units, "hand_units_m": clips.hand_units, "body_up": clips.body_up,
+        "hand_up": clips.hand_up,
+        "body_handedness": clips.body_axes.handedness, "hand_handedness": clips.hand_axes.handedness,
         "features": settings.features, "passes": settings.passes,
         "band1": settings.band1, "band2": settings.band2,
         "band1_hand_frames": al.band1_frames, "band2_frames": al.band2_frames,
         "matches": [list(p) for p in (matches or [])], "tolerance_frames": settings.tolerance,
-        "pass1_status": SolverStatus(status).name,
+        "pass1_status": SolverStatus(timed.status).name,
         "pass2_used": bool(al.pass2_used[0]), "pass2_note": al.pass2_note[0],
         "hand_yaw_deg": math.degrees(float(al.yaw[0])),
         "local_speed_range": [float(speed.min()), float(speed.max())],
         "longest_hold_s": _longest_flat(hand_frame) / mb.fps,
-        "fingers_inserted": column_map is not None,
+        "fingers_inserted": carried.column_map is not None,
         "wrist": wrist,
-        "joints_carried": [[m.finger, m.ordinal, m.src, m.dst] for m in matched],
-        "seconds_alignment": t_align, "seconds_total": time.perf_counter() - t_start,
+        "joints_carried": [[m.finger, m.ordinal, m.src, m.dst] for m in carried.matches],
+        "seconds_alignment": timed.seconds, "seconds_total": time.perf_counter() - t_start,
     }
-    return SpliceResult(clip=result_clip, alignment=al, body_rig=out_rig, hand_rig=hrig, matches=tuple(matched),
-                        report=report)
 
 
 def _opt(x: torch.Tensor | None) -> torch.Tensor | None:
