@@ -70,6 +70,8 @@ import numpy as np
 import torch
 
 from ..errors import InputValueError
+from ._frame_geometry import _axis_param, _closest_segment_points, _pad, _tangents, exp_rot, rotvec
+from ._frame_qp import dense_qp
 from .torque_derivs import (
     TreeOrder,
     point_jacobian,
@@ -253,164 +255,48 @@ def torques(hand, q, root, links, h, f, gravity=(0.0, 0.0, -9.81)) -> np.ndarray
     return u.numpy()
 
 
-# ------------------------------------------------------------------------------------------------ rotations
-def exp_rot(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices of rotation vectors, (..., 3) -> (..., 3, 3) (Rodrigues)."""
-    w = np.asarray(w, dtype=np.float64)
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    K = K - np.swapaxes(K, -1, -2)
-    small = th < 1e-8
-    a = np.where(small, 1.0, np.sin(th) / np.where(small, 1.0, th))
-    b = np.where(small, 0.5, (1 - np.cos(th)) / np.where(small, 1.0, th * th))
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (3, 3) -> (3,): the angle from atan2(|w| / 2, (tr R - 1) / 2), w the
-    skew part (accurate at small angles); beyond about 154 degrees, where the skew part loses the axis, SciPy's."""
-    R = np.asarray(R, dtype=np.float64)
-    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-    if c > -0.9:
-        w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-        sn = 0.5 * math.sqrt(w @ w)
-        return w * (0.5 / c if sn < 1e-12 else math.atan2(sn, c) / (2.0 * sn))
-    from scipy.spatial.transform import Rotation
-    return Rotation.from_matrix(R).as_rotvec()
-
-
-# ------------------------------------------------------------------------------------------------ dense QP
-def _solve_fn():
-    """``solve(S, b)`` for a square float64 S (m, m) and b (m,): the LAPACK gesv gufunc that ``np.linalg.solve`` calls,
-    without the wrapper's per-call argument handling (a few dozen microseconds, thousands of calls per motion);
-    ``np.linalg.solve`` itself where NumPy does not expose it. Raises ``np.linalg.LinAlgError`` on a singular S."""
-    try:
-        from numpy.linalg import _umath_linalg
-        from numpy.linalg.linalg import (
-            _raise_linalgerror_singular,
-            get_linalg_error_extobj,
-        )
-
-        gufunc = _umath_linalg.solve1
-        extobj = get_linalg_error_extobj(_raise_linalgerror_singular)
-        probe = gufunc(np.eye(2), np.ones(2), signature="dd->d", extobj=extobj)
-        if not np.array_equal(probe, np.ones(2)):
-            raise ValueError("probe")
-    except (ImportError, AttributeError, TypeError, ValueError):     # another NumPy: the public function
-        return np.linalg.solve
-
-    def solve(S, b):
-        return gufunc(S, b, signature="dd->d", extobj=extobj)
-    return solve
-
-
-_solve = _solve_fn()
-
-
-def dense_qp(H: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, C: np.ndarray, d: np.ndarray,
-             max_iters: int = 200, tol: float = 1e-10):
-    """``min 1/2 x^T H x + g^T x  s.t.  A x = b, C x <= d`` for a small dense strictly convex QP (H positive
-    definite), by the Goldfarb-Idnani dual active-set method. The KKT system of every active set is solved through
-    its Schur complement ``N H^-1 N^T`` (m x m, m the active rows) with H^-1 from one Cholesky factorisation of
-    the diagonally scaled H; a badly scaled H (diagonal ratio above 1e8, such as the elastic mode's 1e-9 slack
-    weights, where the Schur route loses accuracy) solves the full KKT matrix densely at every change.
-
-    returns: (x (n,), status: 0 solved, 1 infeasible, 2 iteration limit, largest violation left)
-    """
-    n = H.shape[0]
-    act: list[int] = []                                       # active inequality rows
-    u = np.zeros(0)                                           # multipliers of act (>= 0)
-    Hinv = None
-    dg = np.diag(H)
-    if n and dg.min() > 0 and dg.max() <= 1e8 * dg.min():
-        sc = 1.0 / np.sqrt(dg)
-        try:
-            Li = np.linalg.inv(np.linalg.cholesky(H * sc[:, None] * sc[None, :])) * sc[None, :]
-            Hinv = Li.T @ Li
-            WA, WC = A @ Hinv, C @ Hinv                       # rows of N H^-1, each constraint's once
-        except np.linalg.LinAlgError:
-            Hinv = None
-
-    def kkt_schur(rhs_x, rhs_c):
-        """H x - N^T y = rhs_x, -N x = rhs_c: y = -(N H^-1 N^T)^-1 (rhs_c + N H^-1 rhs_x), x = H^-1 (rhs_x + N^T y)."""
-        xh = Hinv @ rhs_x
-        if not act and A.shape[0] == 0:
-            return xh, np.zeros(0)
-        Nm = np.concatenate([A, -C[act]], 0) if act else A
-        W = np.concatenate([WA, -WC[act]], 0) if act else WA
-        S = W @ Nm.T
-        rhs = -(rhs_c + Nm @ xh)
-        try:
-            y = _solve(S, rhs)
-        except np.linalg.LinAlgError:
-            y = np.linalg.lstsq(S, rhs, rcond=None)[0]
-        return xh + W.T @ y, y
-
-    def kkt(rhs_x, rhs_c):
-        if Hinv is not None:
-            return kkt_schur(rhs_x, rhs_c)
-        Nm = np.array([A[i] for i in range(A.shape[0])] + [-C[j] for j in act]).reshape(-1, n)   # n^T x >= b form
-        m = Nm.shape[0]
-        K = np.zeros((n + m, n + m))
-        K[:n, :n], K[:n, n:], K[n:, :n] = H, -Nm.T, -Nm
-        try:
-            sol = _solve(K, np.concatenate([rhs_x, rhs_c]))
-        except np.linalg.LinAlgError:
-            sol = np.linalg.lstsq(K, np.concatenate([rhs_x, rhs_c]), rcond=None)[0]
-        return sol[:n], sol[n:]
-
-    x, _ = kkt(-g, -b if A.shape[0] else np.zeros(0))
-    status = 2
-    feas_tol = tol * (1 + np.abs(d).max()) if C.shape[0] else 0.0
-    for _ in range(max_iters):
-        s = d - C @ x                                          # slack, >= 0 when satisfied
-        if C.shape[0] == 0 or s.min() >= -feas_tol:
-            status = 0
-            break
-        p = int(np.argmin(s))
-        n_p = -C[p]                                            # n_p^T x >= -d_p
-        n_max = np.abs(n_p).max()
-        u_p = 0.0
-        while True:
-            z, r = kkt(n_p, np.zeros(A.shape[0] + len(act)))   # primal direction, multiplier change
-            r_act = -r[A.shape[0]:]
-            t1, drop = np.inf, -1
-            pos = r_act > 1e-14
-            if pos.any():                                       # dual step: the first multiplier to reach zero
-                ratios = np.where(pos, u / np.where(pos, r_act, 1.0), np.inf)
-                drop = int(np.argmin(ratios))
-                t1 = float(ratios[drop])
-            nz = float(n_p @ z)
-            if np.abs(H @ z).max() <= 1e-9 * n_max or nz <= 0:     # dependent on the active set
-                if drop < 0:
-                    status = 1
-                    return x, status, float(max(0.0, -s.min()))
-                u = u - t1 * r_act
-                u_p += t1
-                del act[drop]
-                u = np.delete(u, drop)
-                continue
-            t2 = (C[p] @ x - d[p]) / nz                         # makes row p active
-            t = min(t1, t2)
-            x = x + t * z
-            u = u - t * r_act
-            u_p += t
-            if t2 <= t1:
-                act.append(p)
-                u = np.append(u, u_p)
-                break
-            del act[drop]
-            u = np.delete(u, drop)
-    viol = 0.0
-    if C.shape[0]:
-        viol = max(viol, float(max(0.0, (C @ x - d).max())))
-    if A.shape[0]:
-        viol = max(viol, float(np.abs(A @ x - b).max()))
-    return x, status, viol
-
-
 # ------------------------------------------------------------------------------------------------ one frame
+def _qp_step(L, lm, damp, base, nv, C_box, project=False):
+    """The step: Gauss-Newton QP damped by ``lm`` (Levenberg-Marquardt, scaled by the per-iteration step sizes
+    ``base``), or, with ``project``, the least-norm step onto the constraints."""
+    if project:
+        Hm, g = damp.copy(), np.zeros(nv)
+    else:
+        Hm = 2 * (L['Jr'].T @ L['Jr'] + L['Jp'].T @ L['Jp']) + lm * damp
+        g = 2 * (L['Jr'].T @ L['r'] + L['Jp'].T @ L['pr'])
+    lo, hi = np.maximum(L['vlo'], -4 * base), np.minimum(L['vhi'], 4 * base)
+    C = np.concatenate([L['C'], C_box], 0)
+    d = np.concatenate([L['d'], hi, -lo])
+    dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
+    if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities
+        A, b = L['A'], L['b']                         # and on the receding-slack rows (the first m_app of C)
+        m, ma = A.shape[0], L['m_app']
+        ne = nv + 2 * m + ma
+        He = np.zeros((ne, ne))
+        He[:nv, :nv] = Hm
+        He[nv:, nv:] = 1e-9 * np.eye(2 * m + ma)
+        ge = np.concatenate([g, L['w'], L['w'], np.full(ma, ELASTIC_WEIGHT)])
+        Ae = np.concatenate([A, np.eye(m), -np.eye(m), np.zeros((m, ma))], 1)
+        Ce = np.zeros((C.shape[0] + 2 * m + ma, ne))
+        Ce[:C.shape[0], :nv] = C
+        Ce[np.arange(ma), nv + 2 * m + np.arange(ma)] = -1.0
+        Ce[C.shape[0]:, nv:] = -np.eye(2 * m + ma)
+        de = np.concatenate([d, np.zeros(2 * m + ma)])
+        dx = dense_qp(He, ge, Ae, b, Ce, de)[0][:nv]
+    # the box bounds (joint limits, speeds) hold exactly whatever the subproblem's status: a failed elastic
+    # solve may return a step outside them
+    return np.clip(dx, lo, hi)
+
+
+def _apply_step(x, dx, N):
+    """x = (q, root, s) moved by the step dx = (root twist, q, s) (N = 6 + D); s kept in [0, 1]."""
+    q, root, s = x
+    root = root.copy()
+    root[:3, :3] = exp_rot(dx[:3]) @ root[:3, :3]
+    root[:3, 3] = root[:3, 3] + dx[3:6]
+    return q + dx[6:N], root, np.clip(s + dx[N:], 0.0, 1.0)
+
+
 def _pose_batch(root: np.ndarray, q: np.ndarray, h: np.ndarray, eps: float, with_h: bool):
     """Base point plus one forward-difference perturbation per variable (root twist, q, and h when ``with_h``)."""
     D, H = q.shape[0], h.shape[0]
@@ -701,52 +587,14 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
 
     damp = np.diag(1.0 / base ** 2)
 
-    def qp(L, lm, project=False):
-        """The step: Gauss-Newton QP damped by ``lm`` (Levenberg-Marquardt, scaled by the per-iteration step sizes
-        ``base``), or, with ``project``, the least-norm step onto the constraints."""
-        if project:
-            Hm, g = damp.copy(), np.zeros(nv)
-        else:
-            Hm = 2 * (L['Jr'].T @ L['Jr'] + L['Jp'].T @ L['Jp']) + lm * damp
-            g = 2 * (L['Jr'].T @ L['r'] + L['Jp'].T @ L['pr'])
-        lo, hi = np.maximum(L['vlo'], -4 * base), np.minimum(L['vhi'], 4 * base)
-        C = np.concatenate([L['C'], C_box], 0)
-        d = np.concatenate([L['d'], hi, -lo])
-        dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
-        if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities
-            A, b = L['A'], L['b']                         # and on the receding-slack rows (the first m_app of C)
-            m, ma = A.shape[0], L['m_app']
-            ne = nv + 2 * m + ma
-            He = np.zeros((ne, ne))
-            He[:nv, :nv] = Hm
-            He[nv:, nv:] = 1e-9 * np.eye(2 * m + ma)
-            ge = np.concatenate([g, L['w'], L['w'], np.full(ma, ELASTIC_WEIGHT)])
-            Ae = np.concatenate([A, np.eye(m), -np.eye(m), np.zeros((m, ma))], 1)
-            Ce = np.zeros((C.shape[0] + 2 * m + ma, ne))
-            Ce[:C.shape[0], :nv] = C
-            Ce[np.arange(ma), nv + 2 * m + np.arange(ma)] = -1.0
-            Ce[C.shape[0]:, nv:] = -np.eye(2 * m + ma)
-            de = np.concatenate([d, np.zeros(2 * m + ma)])
-            dx = dense_qp(He, ge, Ae, b, Ce, de)[0][:nv]
-        # the box bounds (joint limits, speeds) hold exactly whatever the subproblem's status: a failed elastic
-        # solve may return a step outside them
-        return np.clip(dx, lo, hi)
-
-    def apply(x, dx):
-        q, root, s = x
-        root = root.copy()
-        root[:3, :3] = exp_rot(dx[:3]) @ root[:3, :3]
-        root[:3, 3] = root[:3, 3] + dx[3:6]
-        return q + dx[6:N], root, np.clip(s + dx[N:], 0.0, 1.0)
-
     x = (start.q.copy(), start.root.copy(), _axis_param(ca, seg, start.h))
     L = linearise(*x)
     lm, it, converged = 1e-5, 0, False
     max_iters = st.max_iters * (3 if settle else 1)        # the first frame starts farther from feasibility
     while it < max_iters:
         it += 1
-        dx = qp(L, lm)
-        xn = apply(x, dx)
+        dx = _qp_step(L, lm, damp, base, nv, C_box)
+        xn = _apply_step(x, dx, N)
         Ln = linearise(*xn)
         if Ln['merit'] > L['merit'] * (1 + 1e-12) + 1e-15:
             lm *= 10.0                                     # backtrack: more damping, a shorter step
@@ -761,52 +609,11 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     for _ in range(4):                                    # restore the constraints (least-norm steps)
         if L['viol'] <= 1e-9:
             break
-        x = apply(x, qp(L, 0.0, project=True))
+        x = _apply_step(x, _qp_step(L, 0.0, damp, base, nv, C_box, project=True), N)
         L = linearise(*x)
     q, root, _ = x
     return FrameResult(frame=HandFrame(q=q, root=root, h=L['h'], p=None), objective=L['objective'], iterations=it,
                        converged=converged, violation=L['viol'], gap=L['gap'])
-
-
-def _closest_segment_points(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray):
-    """Closest points of segment pairs [p1, q1] and [p2, q2], (P, 3) each (Ericson, Real-Time Collision Detection,
-    5.1.9; degenerate segments are points). Returns (c1 (P, 3), c2 (P, 3))."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = (d1 * d1).sum(-1), (d2 * d2).sum(-1)
-    f, c, b = (d2 * r).sum(-1), (d1 * r).sum(-1), (d1 * d2).sum(-1)
-    eps = 1e-18
-    denom = a * e - b * b
-    s = np.where(denom > eps, np.clip((b * f - c * e) / np.where(denom > eps, denom, 1.0), 0.0, 1.0), 0.0)
-    t = np.where(e > eps, (b * s + f) / np.where(e > eps, e, 1.0), 0.0)
-    s = np.where(t < 0.0, np.clip(-c / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
-    s = np.where(t > 1.0, np.clip((b - c) / np.where(a > eps, a, 1.0), 0.0, 1.0), s)
-    t = np.clip(t, 0.0, 1.0)
-    s = np.where(a > eps, s, 0.0)
-    return p1 + s[:, None] * d1, p2 + t[:, None] * d2
-
-
-def _axis_param(a: np.ndarray, seg: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Position in [0, 1] along each capsule axis (a + s seg) of the points h (H, 3), link frame."""
-    return np.clip(((h - a) * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18), 0.0, 1.0)
-
-
-def _pad(J: np.ndarray, nv: int) -> np.ndarray:
-    out = np.zeros(J.shape[:-1] + (nv,))
-    out[..., :J.shape[-1]] = J
-    return out
-
-
-def _tangents(n: np.ndarray):
-    """Two unit tangents (t1, t2) of a unit normal n (3,): t1 = n x a / |n x a| (a = x, or y when n is near x),
-    t2 = n x t1 (written out: np.cross's overhead dominates at this size)."""
-    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
-    if abs(n0) < 0.9:                                     # n x (1, 0, 0)
-        t1 = np.array([0.0, n2, -n1])
-    else:                                                 # n x (0, 1, 0)
-        t1 = np.array([-n2, 0.0, n0])
-    t1 /= math.sqrt(t1 @ t1)
-    a0, a1, a2 = t1
-    return t1, np.array([n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0])
 
 
 _TREES: dict = {}
