@@ -1,4 +1,4 @@
-"""Make the packaged grasps of the Liu 2009 built-in scenes: torchhand/scenes/grasps/<scene>.npz.
+"""Make the packaged grasps of the Liu 2009 built-in scenes: torchhand/scene/builtin/grasps/<scene>.npz.
 
 How each grasp is made (deterministic: a seeded search on one thread, node budgets in work units):
 
@@ -102,7 +102,7 @@ def make_roll(work: Path | None = None) -> Path:
     3. ``snap_grasp`` with ``ROLL_SNAP_TOL``: the two distal links are the only contacts (0.2 mm gap of the index
        closed by the finger IK); the two thicker phalanges behind them are reported as gaps that are not contacts.
 
-    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a grid over the thumb's
+    How the posture was found (once; the rounded angles are in ``torchhand/scene/builtin/liu.py``): a grid over the thumb's
     six joints (6 values each) and the index's four (8 each) for distal capsules about 2 R + r_thumb + r_index apart
     and near parallel, kept when the cylinder between them cleared the other links, then a least-squares refinement
     (tangency, diametrically opposite contacts, fingertip pads facing the cylinder, about 3 mm of clearance for
@@ -130,7 +130,7 @@ def make_press(work: Path | None = None) -> Path:
     2. ``snap_grasp`` with the default 5 mm tolerance: the three distal links are the only contacts (gaps under
        1 mm, closed by the finger IK).
 
-    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a least-squares fit of
+    How the posture was found (once; the rounded angles are in ``torchhand/scene/builtin/liu.py``): a least-squares fit of
     the wrist and the thumb, index and middle joints, starting from a flexed hand 6 cm above the plate, with each
     fingertip capsule tangent to the top face near a chosen point ((-25, 8), (15, 14), (18, -10) mm: a triangle
     around the centre, so that the fingertips can balance the spring's torque), every other link at least 4 mm from
@@ -158,7 +158,7 @@ def make_shadow_lift(work: Path | None = None) -> Path:
     3. saved with ``hand`` = ``SHADOW_HAND``, the path relative to the shared data directory
        (``torchhand.manipulation.grasp.load_packaged_grasp`` resolves it; the Shadow files are not shipped).
 
-    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): a least-squares fit of
+    How the posture was found (once; the rounded angles are in ``torchhand/scene/builtin/liu.py``): a least-squares fit of
     the wrist and every finger joint, starting from the palm 3 cm over the top face, each of the four fingertip
     capsules tangent to its face near a chosen point, the first, middle and ring distal axes within about 20 degrees
     of the face normal (the fingertip ends touch: there the fitted capsules lie within 0.6 mm of the Shadow's
@@ -185,7 +185,7 @@ def make_two_hand_lift(work: Path | None = None) -> Path:
     2. ``snap_grasp`` with ``TWO_HAND_SNAP_TOL``: the thumb metacarpal and the index and middle fingers' middle and
        distal links touch.
 
-    How the posture was found (once; the rounded angles are in ``torchhand/scenes/liu.py``): from the two-hand-box
+    How the posture was found (once; the rounded angles are in ``torchhand/scene/builtin/liu.py``): from the two-hand-box
     scene's hand pose (the palm centre 9 mm off the face, fingers straight), a least-squares fit of the thumb joints
     that takes the thumb 3 mm out of the face, then of the wrist and the finger joints with the palm and the four
     fingers' middle links tangent to the face and every other link at least 3 mm off it.

@@ -44,11 +44,19 @@ from ._common import add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """``torchhand capture VERB``: one sub-command parser per verb."""
     p = sub.add_parser("capture", help="interaction capture: compliance and reference trajectory from forces",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     verbs = p.add_subparsers(dest="verb", metavar="VERB")
     verbs.required = True
+    _add_estimate(verbs)
+    _add_synthetic(verbs)
+    _add_resynthesize(verbs)
+    _add_from_result(verbs)
 
+
+def _add_estimate(verbs: argparse._SubParsersAction) -> None:
+    """``capture estimate CAPTURE --out DIR``: compliance at contact events, the reference trajectory."""
     e = verbs.add_parser("estimate", help="compliance at contact events and the reference trajectory",
                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     e.add_argument("capture", metavar="CAPTURE", help="capture.npz (docs/interaction_capture.md)")
@@ -81,6 +89,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_threads_argument(e)
     e.set_defaults(func=run_estimate)
 
+
+def _add_synthetic(verbs: argparse._SubParsersAction) -> None:
+    """``capture synthetic --out DIR``: a capture with known compliance simulated by MuJoCo."""
     s = verbs.add_parser("synthetic", help="a capture with known compliance simulated by MuJoCo",
                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     s.add_argument("--out", required=True, metavar="DIR", help="output directory (new or empty)")
@@ -95,6 +106,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--seed", type=int, default=0, help="seed of the postures, trajectories and noise (0)")
     s.set_defaults(func=run_synthetic)
 
+
+def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
+    """``capture resynthesize INTERACTION --scene SCENE --out DIR``: quasi-static resynthesis."""
     r = verbs.add_parser("resynthesize", help="quasi-static resynthesis of an interaction on a scene's object",
                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("interaction", metavar="INTERACTION", help="interaction.npz (docs/interaction_capture.md)")
@@ -127,6 +141,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_threads_argument(r)
     r.set_defaults(func=run_resynthesize)
 
+
+def _add_from_result(verbs: argparse._SubParsersAction) -> None:
+    """``capture from-result RESULT --out DIR``: an inferred interaction from a synthesis result."""
     f = verbs.add_parser("from-result", help="an inferred interaction from a synthesis result's contact forces",
                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     f.add_argument("result", metavar="RESULT", help="a `torchhand synthesize` result directory")

@@ -13,8 +13,9 @@ Grid layout
 How a grid is built (:meth:`SDFGrid.from_mesh`)
     Exact point-triangle distances for the magnitude, the generalized winding number (Barnes-Hut tree) for the
     sign, so open scans keep a sign and meshes too open to have an inside are refused; grids are cached on disk
-    keyed by the mesh content hash, voxel size, padding and :data:`BUILD_VERSION`. The machinery, and
-    :func:`inside_report` / :func:`winding_number` (re-exported here), live in :mod:`torchhand.geometry._sdf_build`.
+    keyed by the mesh content hash, voxel size, padding and :data:`BUILD_VERSION`. The machinery lives in
+    :mod:`torchhand.geometry._sdf_build` and its stages; :func:`inside_report` / :func:`winding_number` (re-exported
+    here) in :mod:`torchhand.geometry._sdf_winding`.
 """
 
 from __future__ import annotations
@@ -33,19 +34,9 @@ from ..conventions import check_finite, check_tensor
 from ..errors import InputTypeError, InputValueError, ShapeError
 from ..kernels.sdf import _sdf_impl, pack_corners, sdf_trilinear, sdf_trilinear_with_grad
 # The builder's helpers are looked up in this module's namespace by SDFGrid.from_mesh (tests patch them here).
-from ._sdf_build import (
-    BUILD_VERSION,
-    InsideReport,
-    _build_values,
-    _cache_path,
-    _clean_arrays,
-    _grid_layout,
-    _one_thread,
-    _read_cache,
-    _write_cache,
-    inside_report,
-    winding_number,
-)
+from ._sdf_build import BUILD_VERSION, _build_values, _cache_path, _grid_layout, _read_cache, _write_cache
+from ._sdf_common import _clean_arrays, _one_thread
+from ._sdf_winding import InsideReport, inside_report, winding_number
 
 __all__ = [
     "SDFGrid",

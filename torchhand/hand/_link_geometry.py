@@ -13,8 +13,10 @@ import numpy as np
 import torch
 import trimesh
 
+from ._specs import GEOM_TYPES
+
 if TYPE_CHECKING:  # pragma: no cover
-    from .model import GeomSpec
+    from ._specs import GeomSpec
 
 __all__ = ["surface_samples", "fit_capsules", "geom_points", "geom_trimesh", "link_geom_meshes"]
 
@@ -158,8 +160,6 @@ def geom_trimesh(kind: str, size, mesh=None, *, sections: int = 16) -> trimesh.T
 
 def link_geom_meshes(model, *, sections: int = 16) -> dict[int, list[trimesh.Trimesh]]:
     """link index -> the link's collision geoms as triangle meshes in the link frame (:func:`geom_trimesh`)."""
-    from .model import GEOM_TYPES
-
     g = model.geoms
     size = g.size.detach().cpu().double().numpy()
     pose = g.pose.detach().cpu().double().numpy()

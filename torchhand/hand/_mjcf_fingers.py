@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .model import FingerSpec, GeomSpec
+from ._specs import FingerSpec, GeomSpec
 
 if TYPE_CHECKING:
-    from ._mjcf_read import _Tree
+    from ._mjcf_bodies import _Tree
 
 _FLEX_PARALLEL_COS = math.cos(math.radians(25.0))
 

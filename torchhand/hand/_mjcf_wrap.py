@@ -24,6 +24,7 @@ from __future__ import annotations
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -31,7 +32,9 @@ import torch
 from .._atomic import atomic_text
 from ._mjcf_common import _ROOT_WRAPPER
 from ._mjcf_write import TINY_INERTIA, TINY_MASS, _fmt, _set_pose, hand_to_mjcf
-from .model import HandModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .model import HandModel
 
 __all__ = ["wrap_user_mjcf"]
 

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import hashlib
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -15,7 +17,10 @@ import torch
 from .._atomic import atomic_text
 from ..errors import InputValueError, MissingFileError
 from ._mjcf_common import _ROOT_WRAPPER, _mat_to_quat
-from .model import GEOM_TYPES, HandModel
+from ._specs import GEOM_TYPES
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .model import HandModel
 
 __all__ = ["hand_to_mjcf", "save_mjcf"]
 
@@ -80,11 +85,19 @@ def hand_to_mjcf(hand: HandModel) -> str:
         principal moments violate A + B >= C
     """
     h = hand.to(device="cpu", dtype=torch.float64)
-    ch, gm = h.chain, h.geoms
-    L, D = h.num_links, h.num_joints
     root = ET.Element("mujoco", model=h.name)
     ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false")
+    _write_custom(root, h)
+    mesh_names = _write_meshes(root, h)
+    _write_worldbody(ET.SubElement(root, "worldbody"), h, mesh_names)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode") + "\n"
 
+
+def _write_custom(root: ET.Element, h: HandModel) -> None:
+    """``<custom>``: side, length, q_rest and the finger annotations, which :func:`torchhand.hand.mjcf.load_mjcf`
+    restores."""
+    D = h.num_joints
     custom = ET.SubElement(root, "custom")
     ET.SubElement(custom, "text", name="torchhand_side", data=h.side)
     ET.SubElement(custom, "numeric", name="torchhand_length", data=_fmt([h.length]))
@@ -97,6 +110,11 @@ def hand_to_mjcf(hand: HandModel) -> str:
         ET.SubElement(custom, "numeric", name=f"torchhand_finger{f}_frame",
                       data=_fmt(np.concatenate([h.nail_normal[f].numpy(), h.fingertip[f].numpy()])))
 
+
+def _write_meshes(root: ET.Element, h: HandModel) -> dict[int, str]:
+    """``<asset>`` with one inline ``<mesh>`` per distinct mesh (none: no ``<asset>``); returns geom index -> mesh
+    name."""
+    gm = h.geoms
     asset = ET.SubElement(root, "asset")
     mesh_names, by_hash = {}, {}
     for g in range(gm.link.shape[0]):
@@ -114,8 +132,26 @@ def hand_to_mjcf(hand: HandModel) -> str:
         mesh_names[g] = by_hash[key]
     if not by_hash:
         root.remove(asset)
+    return mesh_names
 
-    world = ET.SubElement(root, "worldbody")
+
+@dataclass(frozen=True)
+class _Bodies:
+    """What every ``<body>`` is written from: the float64 CPU hand, each link's child links, the link offsets
+    (L, 4, 4), each link's geom indices and the mesh name of each mesh geom."""
+
+    h: HandModel
+    children: list
+    offsets: np.ndarray
+    geoms_of: list
+    mesh_names: dict
+
+
+def _write_worldbody(world: ET.Element, h: HandModel, mesh_names: dict[int, str]) -> None:
+    """The body tree under ``<worldbody>``, the root carrying the free joint ``root`` (or hanging from the
+    ``torchhand_root`` wrapper that carries it)."""
+    ch, gm = h.chain, h.geoms
+    L, D = h.num_links, h.num_joints
     children = [[] for _ in range(L)]
     for l in range(1, L):
         children[int(ch.link_parent[l])].append(l)
@@ -123,37 +159,7 @@ def hand_to_mjcf(hand: HandModel) -> str:
     geoms_of = [[] for _ in range(L)]
     for g in range(gm.link.shape[0]):
         geoms_of[int(gm.link[g])].append(g)
-
-    def body(parent_elem: ET.Element, l: int, with_free: bool) -> None:
-        b = ET.SubElement(parent_elem, "body", name=h.link_names[l])
-        if l or parent_elem.get("name") == _ROOT_WRAPPER:
-            _set_pose(b, offsets[l])
-        _set_inertial(b, h.link_names[l], float(h.link_mass[l]), h.link_com[l].numpy(), h.link_inertia[l].numpy())
-        if with_free:
-            ET.SubElement(b, "freejoint", name="root")
-        for d in ch.link_joints[l].tolist():
-            if d >= D:
-                continue
-            hinge = int(ch.joint_type[d]) == 0
-            j = ET.SubElement(b, "joint", name=h.joint_names[d], type="hinge" if hinge else "slide")
-            if hinge and np.any(ch.joint_anchor[d].numpy() != 0):
-                j.set("pos", _fmt(ch.joint_anchor[d]))
-            j.set("axis", _fmt(ch.joint_axis[d]))
-            j.set("limited", "true")
-            lo, hi = (float(v) for v in h.joint_limits[d])
-            if hi <= lo:              # a locked joint (torchhand.hand.mount): MuJoCo needs range[0] < range[1]
-                lo, hi = lo - LOCKED_HALF_WIDTH, hi + LOCKED_HALF_WIDTH
-            j.set("range", _fmt(np.array([lo, hi])))
-        for n, g in enumerate(geoms_of[l]):
-            gtype = GEOM_TYPES[int(gm.type[g])]
-            e = ET.SubElement(b, "geom", name=f"{h.link_names[l]}_geom{n}", type=gtype)
-            if gtype == "mesh":
-                e.set("mesh", mesh_names[g])
-            else:
-                e.set("size", _fmt(gm.size[g][: {"sphere": 1, "capsule": 2, "cylinder": 2, "box": 3}[gtype]]))
-            _set_pose(e, gm.pose[g].numpy())
-        for c in children[l]:
-            body(b, c, False)
+    bodies = _Bodies(h, children, offsets, geoms_of, mesh_names)
 
     root_has_joints = bool((ch.link_joints[0] < D).any()) if D else False
     # a root link with its own joints (no free joint beside them) or with an offset (a mounted hand) hangs from a
@@ -163,11 +169,55 @@ def hand_to_mjcf(hand: HandModel) -> str:
         wrapper = ET.SubElement(world, "body", name=_ROOT_WRAPPER)
         _set_inertial(wrapper, _ROOT_WRAPPER, 0.0, np.zeros(3), np.zeros((3, 3)))
         ET.SubElement(wrapper, "freejoint", name="root")
-        body(wrapper, 0, False)
+        _write_body(bodies, wrapper, 0, False)
     else:
-        body(world, 0, True)
-    ET.indent(root)
-    return ET.tostring(root, encoding="unicode") + "\n"
+        _write_body(bodies, world, 0, True)
+
+
+def _write_body(bodies: _Bodies, parent_elem: ET.Element, l: int, with_free: bool) -> None:
+    """``<body>`` of link ``l`` in ``parent_elem``: pose, inertial, joints, geoms, then its child bodies."""
+    h = bodies.h
+    b = ET.SubElement(parent_elem, "body", name=h.link_names[l])
+    if l or parent_elem.get("name") == _ROOT_WRAPPER:
+        _set_pose(b, bodies.offsets[l])
+    _set_inertial(b, h.link_names[l], float(h.link_mass[l]), h.link_com[l].numpy(), h.link_inertia[l].numpy())
+    if with_free:
+        ET.SubElement(b, "freejoint", name="root")
+    _write_joints(b, h, l)
+    _write_geoms(b, bodies, l)
+    for c in bodies.children[l]:
+        _write_body(bodies, b, c, False)
+
+
+def _write_joints(b: ET.Element, h: HandModel, l: int) -> None:
+    """The hinge and slide joints of link ``l``, limited, a locked joint widened to +/- LOCKED_HALF_WIDTH."""
+    ch, D = h.chain, h.num_joints
+    for d in ch.link_joints[l].tolist():
+        if d >= D:
+            continue
+        hinge = int(ch.joint_type[d]) == 0
+        j = ET.SubElement(b, "joint", name=h.joint_names[d], type="hinge" if hinge else "slide")
+        if hinge and np.any(ch.joint_anchor[d].numpy() != 0):
+            j.set("pos", _fmt(ch.joint_anchor[d]))
+        j.set("axis", _fmt(ch.joint_axis[d]))
+        j.set("limited", "true")
+        lo, hi = (float(v) for v in h.joint_limits[d])
+        if hi <= lo:              # a locked joint (torchhand.hand.mount): MuJoCo needs range[0] < range[1]
+            lo, hi = lo - LOCKED_HALF_WIDTH, hi + LOCKED_HALF_WIDTH
+        j.set("range", _fmt(np.array([lo, hi])))
+
+
+def _write_geoms(b: ET.Element, bodies: _Bodies, l: int) -> None:
+    """The collision geoms of link ``l``, named ``<link>_geom<n>``, with MJCF's size semantics."""
+    h, gm = bodies.h, bodies.h.geoms
+    for n, g in enumerate(bodies.geoms_of[l]):
+        gtype = GEOM_TYPES[int(gm.type[g])]
+        e = ET.SubElement(b, "geom", name=f"{h.link_names[l]}_geom{n}", type=gtype)
+        if gtype == "mesh":
+            e.set("mesh", bodies.mesh_names[g])
+        else:
+            e.set("size", _fmt(gm.size[g][: {"sphere": 1, "capsule": 2, "cylinder": 2, "box": 3}[gtype]]))
+        _set_pose(e, gm.pose[g].numpy())
 
 
 def save_mjcf(hand: HandModel, path) -> Path:

@@ -73,12 +73,35 @@ Export: :func:`hand_to_mjcf` (also ``HandModel.to_mjcf``) and :func:`save_mjcf`
     (meshes MuJoCo cannot compile, i.e. flat or with fewer than 4 vertices, are refused). Side, length, q_rest and the
     finger annotations go into ``<custom>`` so that :func:`load_mjcf` restores them.
 
+Modules: the reader (:mod:`~torchhand.hand._mjcf_read`, over :mod:`~torchhand.hand._mjcf_parse`,
+:mod:`~torchhand.hand._mjcf_bodies` and :mod:`~torchhand.hand._mjcf_fingers`) turns a file into a plain
+:class:`~torchhand.hand._specs.HandSpec`, from which :func:`~torchhand.hand.model.build_from_spec` builds the model;
+the writer (:mod:`~torchhand.hand._mjcf_write`) reads a built model. Neither imports :mod:`torchhand.hand.model`.
+
 Conventions: metres, radians, quaternions wxyz, column-vector 4x4 transforms (see :mod:`torchhand.conventions`).
 """
 
 from __future__ import annotations
 
-from ._mjcf_read import load_mjcf
+from ._mjcf_read import read_mjcf
 from ._mjcf_write import hand_to_mjcf, save_mjcf
+from .model import HandModel, build_from_spec
 
 __all__ = ["load_mjcf", "hand_to_mjcf", "save_mjcf"]
+
+
+def load_mjcf(path, *, root_body: str | None = None, side: str | None = None, name: str | None = None) -> HandModel:
+    """Load a hand from an MJCF file (see this module's docstring for what is supported and the heuristics).
+
+    path:      the .xml file; mesh files are found through ``<compiler meshdir/assetdir>`` relative to it
+    root_body: name of the body that becomes link 0 (default: the first body under ``<worldbody>``); its world pose
+               (before its own joints) is the FK's ``root`` input
+    side:      "right" | "left" | "none"; default: from the file name, model name or body-name prefixes
+    name:      model name; default: ``<mujoco model=...>`` or the file name
+    returns: HandModel (float64, CPU); joints in MuJoCo's qpos order (free joint excluded); the model that
+             :func:`~torchhand.hand.model.build_hand_model` builds from :func:`~torchhand.hand._mjcf_read.read_mjcf`'s
+             spec, as ``HandModel.from_mjcf``
+    raises: MissingFileError (file or mesh file missing), FileFormatError (malformed XML, unsupported or invalid
+            element, naming the file and the element), UnknownNameError (``root_body`` not found)
+    """
+    return build_from_spec(read_mjcf(path, root_body=root_body, side=side, name=name))

@@ -2,8 +2,10 @@
 
 A hand is a kinematic tree of links (MJCF bodies) moved by hinge and slide joints, with collision geometry per link,
 surface samples for penetration checks, and per-finger annotations (distal link, nail normal, fingertip pad point,
-the three flexion joints coupled by Ye & Liu's Eq. 11). Built from plain specs by :func:`build_hand_model`; the
-default 36-DOF human hand is in :mod:`torchhand.hand.default`, MJCF import/export in :mod:`torchhand.hand.mjcf`.
+the three flexion joints coupled by Ye & Liu's Eq. 11). Built from the plain specs of :mod:`torchhand.hand._specs`
+(re-exported here) by :func:`build_hand_model`, whose stages are in :mod:`torchhand.hand._build`; the default 36-DOF
+human hand is in :mod:`torchhand.hand.default`, MJCF import/export in :mod:`torchhand.hand.mjcf`
+(:meth:`HandModel.from_mjcf` builds the :class:`HandSpec` the reader returns, :meth:`HandModel.to_mjcf` calls the writer).
 
 Conventions (see :mod:`torchhand.conventions`): metres, radians, column-vector 4x4 transforms; the root link
 (index 0) is the wrist frame whose world pose is the 6-DOF root input.
@@ -11,18 +13,22 @@ Conventions (see :mod:`torchhand.conventions`): metres, radians, column-vector 4
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from torchhand.kernels.kinematics import JOINT_HINGE, JOINT_SLIDE, Chain
+from torchhand.kernels.kinematics import Chain
 from torchhand.kernels import kinematics as _kin
 
+from . import _build
 from . import dynamics as _dyn
+from ._build import as_tensor
 from ._link_geometry import fit_capsules as _fit_capsules
 from ._link_geometry import surface_samples as _surface_samples
+from ._mjcf_read import read_mjcf
+from ._mjcf_write import hand_to_mjcf
+from ._specs import GEOM_TYPES, FingerSpec, GeomSpec, HandSpec, InertialSpec, JointSpec, LinkSpec
 from .._tree import tree_to
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputValueError, ShapeError, UnknownNameError
@@ -34,77 +40,12 @@ __all__ = [
     "GeomSpec",
     "FingerSpec",
     "InertialSpec",
+    "HandSpec",
     "LinkGeoms",
     "HandModel",
     "build_hand_model",
+    "build_from_spec",
 ]
-
-GEOM_TYPES = ("capsule", "box", "sphere", "cylinder", "mesh")
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Plain specs (NumPy, float64) from which a model is built
-# ----------------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class LinkSpec:
-    """name; parent link name (None for the root, which must come first); offset: parent -> link at q = 0, (4, 4)."""
-
-    name: str
-    parent: str | None
-    offset: np.ndarray
-
-
-@dataclass(frozen=True)
-class JointSpec:
-    """A 1-DOF joint moving ``link``. axis (3,) and anchor (3,) in the link frame; limits (2,) radians or metres."""
-
-    name: str
-    link: str
-    type: str  # "hinge" | "slide"
-    axis: np.ndarray
-    anchor: np.ndarray
-    limits: np.ndarray
-
-
-@dataclass(frozen=True)
-class GeomSpec:
-    """Collision geometry on a link, with MJCF's size semantics.
-
-    type: capsule (radius, half-length), cylinder (radius, half-length), sphere (radius), box (half-extents),
-    mesh (vertices (V, 3) and faces (F, 3) in the geom frame); pose: geom frame in the link frame, (4, 4); the axis
-    of capsules and cylinders is the geom frame's z.
-    """
-
-    link: str
-    type: str
-    size: np.ndarray
-    pose: np.ndarray
-    mesh: tuple[np.ndarray, np.ndarray] | None = None
-    name: str | None = None
-
-
-@dataclass(frozen=True)
-class FingerSpec:
-    """A finger (digit): its links from proximal to distal, the nail normal and pad point in the distal link's frame,
-    and up to three consecutive flexion joints coupled in Eq. 11 (proximal first; empty when not applicable)."""
-
-    name: str
-    links: tuple[str, ...]
-    nail_normal: np.ndarray
-    tip: np.ndarray
-    flexion_joints: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class InertialSpec:
-    """Mass properties of a link: mass, kg; com: centre of mass in the link frame, (3,), metres; inertia: about the
-    centre of mass in link-frame axes, (3, 3), kg m^2 (symmetric positive semi-definite)."""
-
-    link: str
-    mass: float
-    com: np.ndarray
-    inertia: np.ndarray
-
 
 # ----------------------------------------------------------------------------------------------------------------
 # The model
@@ -348,15 +289,11 @@ class HandModel:
     @classmethod
     def from_mjcf(cls, path, **kwargs) -> "HandModel":
         """Load a hand described in MJCF (see :func:`torchhand.hand.mjcf.load_mjcf`)."""
-        from .mjcf import load_mjcf
-
-        return load_mjcf(path, **kwargs)
+        return build_from_spec(read_mjcf(path, **kwargs))
 
     def to_mjcf(self) -> str:
         """The model as an MJCF string that MuJoCo loads; the root body carries a free joint (see
         :func:`torchhand.hand.mjcf.hand_to_mjcf`)."""
-        from .mjcf import hand_to_mjcf
-
         return hand_to_mjcf(self)
 
 
@@ -390,148 +327,26 @@ def build_hand_model(
     Surface samples: ``samples_per_area`` per square metre of geometry (at least ``min_samples_per_link`` per link
     with geometry), placed deterministically.
     """
-    link_names = tuple(l.name for l in links)
-    if len(set(link_names)) != len(link_names):
-        raise InputValueError(f"hand {name!r}: duplicate link names")
-    joint_names = tuple(j.name for j in joints)
-    if len(set(joint_names)) != len(joint_names):
-        raise InputValueError(f"hand {name!r}: duplicate joint names")
-    lidx = {n: i for i, n in enumerate(link_names)}
-    L, D = len(links), len(joints)
-    parent = np.full(L, -1, dtype=np.int64)
-    for i, l in enumerate(links):
-        if l.parent is None:
-            if i != 0:
-                raise InputValueError(f"hand {name!r}: only the first link may be the root, {l.name!r} has no parent")
-            continue
-        if l.parent not in lidx or lidx[l.parent] >= i:
-            raise InputValueError(f"hand {name!r}: link {l.name!r} has parent {l.parent!r} that is not listed before it")
-        parent[i] = lidx[l.parent]
-    depth = np.zeros(L, dtype=np.int64)
-    for i in range(1, L):
-        depth[i] = depth[parent[i]] + 1
-
-    joint_link = np.array([lidx[j.link] if j.link in lidx else -1 for j in joints], dtype=np.int64)
-    if D and (joint_link < 0).any():
-        bad = joints[int(np.argmin(joint_link))]
-        raise UnknownNameError(f"joint {bad.name!r} refers to unknown link {bad.link!r}")
-    per_link = [[d for d in range(D) if joint_link[d] == l] for l in range(L)]
-    J = max([len(p) for p in per_link] + [1])
-    link_joints = np.full((L, J), D, dtype=np.int64)
-    for l, p in enumerate(per_link):
-        link_joints[l, : len(p)] = p
-    support = np.zeros((L, D), dtype=bool)
-    for l in range(L):
-        a = l
-        while a >= 0:
-            for d in per_link[a]:
-                support[l, d] = True
-            a = parent[a]
-    axes = np.array([_unit(j.axis, f"joint {j.name} axis") for j in joints]).reshape(D, 3)
-    jtype = np.array([JOINT_HINGE if j.type == "hinge" else JOINT_SLIDE for j in joints], dtype=np.int64)
-
-    def t(a, dt=dtype):
-        return torch.as_tensor(np.asarray(a), dtype=dt)
-
-    chain = Chain(
-        link_parent=t(parent, torch.long),
-        link_offset=t(np.stack([l.offset for l in links])),
-        link_joints=t(link_joints, torch.long),
-        joint_link=t(joint_link, torch.long),
-        joint_type=t(jtype, torch.long),
-        joint_axis=t(axes),
-        joint_anchor=t(np.array([j.anchor for j in joints]).reshape(D, 3)),
-        support=t(support, torch.bool),
-        levels=tuple(t(np.nonzero(depth == k)[0], torch.long) for k in range(int(depth.max()) + 1)),
-        slot_links=tuple(t([l for l in range(L) if len(per_link[l]) > k], torch.long) for k in range(J)
-                         if any(len(p) > k for p in per_link)),
-        slot_joints=tuple(t([per_link[l][k] for l in range(L) if len(per_link[l]) > k], torch.long)
-                          for k in range(J) if any(len(p) > k for p in per_link)),
-        support_joints=t(_padded([np.nonzero(support[l])[0] for l in range(L)]), torch.long),
-    )
-    limits = np.array([j.limits for j in joints], dtype=np.float64).reshape(D, 2)
-    if (limits[:, 0] > limits[:, 1]).any():
-        raise InputValueError(f"hand {name!r}: a joint's lower limit exceeds its upper limit")
-    if q_rest is None:
-        q_rest = np.clip(np.zeros(D), limits[:, 0], limits[:, 1])
-
-    # Geometry.
-    meshes, mesh_index = [], []
-    for g in geoms:
-        if g.type not in GEOM_TYPES:
-            raise InputValueError(f"geom on link {g.link!r}: unknown type {g.type!r}; expected one of {GEOM_TYPES}")
-        if g.link not in lidx:
-            raise UnknownNameError(f"geom refers to unknown link {g.link!r}")
-        if g.type == "mesh":
-            mesh_index.append(len(meshes))
-            meshes.append((t(g.mesh[0]), t(g.mesh[1], torch.long)))
-        else:
-            mesh_index.append(-1)
-    G = len(geoms)
-    link_geoms = LinkGeoms(
-        link=t(np.array([lidx[g.link] for g in geoms], dtype=np.int64).reshape(G), torch.long),
-        type=t(np.array([GEOM_TYPES.index(g.type) for g in geoms], dtype=np.int64).reshape(G), torch.long),
-        size=t(np.array([np.resize(np.asarray(g.size, dtype=np.float64), 3) for g in geoms]).reshape(G, 3)),
-        pose=t(np.array([g.pose for g in geoms]).reshape(G, 4, 4)),
-        mesh_index=t(np.array(mesh_index, dtype=np.int64).reshape(G), torch.long),
-        meshes=tuple(meshes),
-    )
-    mass, com, inertia = _dyn.link_inertials(name, link_names, geoms, inertials, density)
+    tree = _build.tree_tables(name, links, joints)
+    chain = _build.kinematic_chain(tree, links, joints, dtype)
+    limits, q_rest = _build.limits_and_rest(name, joints, q_rest)
+    link_geoms = _link_geoms(geoms, tree.lidx, dtype)
+    L, lidx = len(links), tree.lidx
+    mass, com, inertia = _dyn.link_inertials(name, tree.link_names, geoms, inertials, density)
     cap_a, cap_b, cap_r = _fit_capsules(L, geoms, lidx)
     pts, nrm, lnk = _surface_samples(L, geoms, lidx, samples_per_area, min_samples_per_link)
+    ft = _build.finger_tables(fingers, tree, cap_r)
+    F, finger_links = len(fingers), ft.finger_links
 
-    # Fingers.
-    F = len(fingers)
-    finger_links = np.full((F, 4), -1, dtype=np.int64)
-    link_finger = np.full(L, -1, dtype=np.int64)
-    flex = np.full((F, 3), -1, dtype=np.int64)
-    jidx = {n: i for i, n in enumerate(joint_names)}
-    for f, spec in enumerate(fingers):
-        if not 1 <= len(spec.links) <= 4:
-            raise InputValueError(f"finger {spec.name!r}: expected 1 to 4 links, got {len(spec.links)}")
-        for k, ln in enumerate(spec.links):
-            if ln not in lidx:
-                raise UnknownNameError(f"finger {spec.name!r} refers to unknown link {ln!r}")
-            finger_links[f, k] = lidx[ln]
-            link_finger[lidx[ln]] = f
-        for k, jn in enumerate(spec.flexion_joints[:3]):
-            if jn not in jidx:
-                raise UnknownNameError(f"finger {spec.name!r} refers to unknown joint {jn!r}")
-            flex[f, k] = jidx[jn]
-    # Links between the palm and a finger's first link (a robot finger's base: Allegro's ff_base, Shadow's thbase
-    # and lfmetacarpal) are that finger's: their joints move it. Not in finger_links, not in finger-finger pairs.
-    bases = set()
-    first = {f: int(finger_links[f, 0]) for f in range(F)}
-    ancestors = {f: set() for f in range(F)}
-    for f, l0 in first.items():
-        a = int(parent[l0])
-        while a >= 0:
-            ancestors[f].add(a)
-            a = int(parent[a])
-    for f in range(F):
-        for a in ancestors[f]:
-            if link_finger[a] < 0 and not any(a in ancestors[g] for g in range(F) if g != f):
-                link_finger[a] = f
-                bases.add(a)
-    pairs = []
-    for a in range(L):
-        for b in range(a + 1, L):
-            if a in bases or b in bases:
-                continue
-            fa, fb = link_finger[a], link_finger[b]
-            # Finger-finger pairs: links of different fingers, excluding the first (palm-level) link of a 4-link
-            # finger, which lies inside the palm next to its neighbours by construction.
-            if fa >= 0 and fb >= 0 and fa != fb and cap_r[a] > 0 and cap_r[b] > 0:
-                if _palm_level(a, fa, finger_links) or _palm_level(b, fb, finger_links):
-                    continue
-                pairs.append((a, b))
+    def t(a, dt=dtype):
+        return as_tensor(a, dt)
 
     return HandModel(
         name=name,
         side=side,
         length=float(length),
-        link_names=link_names,
-        joint_names=joint_names,
+        link_names=tree.link_names,
+        joint_names=tree.joint_names,
         chain=chain,
         joint_limits=t(limits),
         q_rest=t(q_rest),
@@ -544,36 +359,47 @@ def build_hand_model(
         sample_link=t(lnk, torch.long),
         finger_names=tuple(f.name for f in fingers),
         finger_links=t(finger_links, torch.long),
-        link_finger=t(link_finger, torch.long),
+        link_finger=t(ft.link_finger, torch.long),
         distal_link=t(np.array([finger_links[f][finger_links[f] >= 0][-1] for f in range(F)], dtype=np.int64)
                       .reshape(F), torch.long),
-        nail_normal=t(np.array([_unit(f.nail_normal, f"finger {f.name} nail normal") for f in fingers]).reshape(F, 3)),
+        nail_normal=t(np.array([_build.unit(f.nail_normal, f"finger {f.name} nail normal") for f in fingers])
+                      .reshape(F, 3)),
         fingertip=t(np.array([f.tip for f in fingers], dtype=np.float64).reshape(F, 3)),
-        flexion_joints=t(flex, torch.long),
-        collision_pairs=t(np.array(pairs, dtype=np.int64).reshape(-1, 2), torch.long),
+        flexion_joints=t(ft.flexion, torch.long),
+        collision_pairs=t(np.array(ft.pairs, dtype=np.int64).reshape(-1, 2), torch.long),
         link_mass=t(mass),
         link_com=t(com),
         link_inertia=t(inertia),
     )
 
 
-def _padded(rows: list[np.ndarray]) -> np.ndarray:
-    """Stack index rows of different lengths into (len(rows), max(1, longest)), padded with -1."""
-    width = max([len(r) for r in rows] + [1])
-    out = np.full((len(rows), width), -1, dtype=np.int64)
-    for i, r in enumerate(rows):
-        out[i, : len(r)] = r
-    return out
+def build_from_spec(spec: HandSpec, **kwargs) -> HandModel:
+    """:func:`build_hand_model` of a :class:`HandSpec` (``kwargs``: its density, sampling and dtype options)."""
+    return build_hand_model(spec.name, spec.links, spec.joints, spec.geoms, spec.fingers, side=spec.side,
+                            length=spec.length, q_rest=spec.q_rest, inertials=spec.inertials, **kwargs)
 
 
-def _palm_level(link: int, finger: int, finger_links: np.ndarray) -> bool:
-    row = finger_links[finger]
-    return int((row >= 0).sum()) == 4 and row[0] == link
-
-
-def _unit(v, what: str) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64).reshape(3)
-    n = float(np.linalg.norm(v))
-    if not math.isfinite(n) or n < 1e-12:
-        raise InputValueError(f"{what}: expected a non-zero finite vector, got {v.tolist()}")
-    return v / n
+def _link_geoms(geoms: list[GeomSpec], lidx: dict, dtype: torch.dtype) -> LinkGeoms:
+    """The padded :class:`LinkGeoms` of the geom specs; raises InputValueError (unknown type) or UnknownNameError
+    (unknown link)."""
+    meshes, mesh_index = [], []
+    for g in geoms:
+        if g.type not in GEOM_TYPES:
+            raise InputValueError(f"geom on link {g.link!r}: unknown type {g.type!r}; expected one of {GEOM_TYPES}")
+        if g.link not in lidx:
+            raise UnknownNameError(f"geom refers to unknown link {g.link!r}")
+        if g.type == "mesh":
+            mesh_index.append(len(meshes))
+            meshes.append((as_tensor(g.mesh[0], dtype), as_tensor(g.mesh[1], torch.long)))
+        else:
+            mesh_index.append(-1)
+    G = len(geoms)
+    return LinkGeoms(
+        link=as_tensor(np.array([lidx[g.link] for g in geoms], dtype=np.int64).reshape(G), torch.long),
+        type=as_tensor(np.array([GEOM_TYPES.index(g.type) for g in geoms], dtype=np.int64).reshape(G), torch.long),
+        size=as_tensor(np.array([np.resize(np.asarray(g.size, dtype=np.float64), 3) for g in geoms]).reshape(G, 3),
+                       dtype),
+        pose=as_tensor(np.array([g.pose for g in geoms]).reshape(G, 4, 4), dtype),
+        mesh_index=as_tensor(np.array(mesh_index, dtype=np.int64).reshape(G), torch.long),
+        meshes=tuple(meshes),
+    )

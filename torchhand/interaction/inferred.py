@@ -49,6 +49,7 @@ import torch
 
 from .._atomic import atomic_bytes, atomic_json, claim_output_dir, writable_dir
 from ..errors import InputValueError
+from ._interaction_file import Interaction
 from .capture import Capture, save_capture
 from .compliance import PRESETS, default_compliance, generalized_names
 
@@ -113,8 +114,6 @@ class InferredInteraction:
 
     def interaction(self):
         """The :class:`~torchhand.interaction.resynth.Interaction` that ``capture resynthesize`` reads."""
-        from .resynth import Interaction
-
         return Interaction(fps=float(self.capture.fps), joint_names=tuple(self.capture.joint_names), C=self.C,
                            theta_r=self.theta_r[:, 6:], root_theta_r=self.theta_r[:, :6],
                            root_origin=self.root_origin, source="inferred")

@@ -41,17 +41,21 @@ and the effective endpoint mass 1 / (e_z^T J M^-1 J^T e_z) with MuJoCo's mass ma
 Jacobian (``mj_jac``).
 
 MuJoCo is a test dependency (``pip install torchhand[test]``); this module imports it lazily.
+
+Layout: the fit is :mod:`._second_order_fit`, the endpoint references :mod:`._endpoint`; this module holds the
+trial's settings, model and simulation.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 
 from ..errors import InputValueError
+from ._endpoint import EndpointReference, endpoint_compliance, endpoint_reference
+from ._second_order_fit import FitStatus, SecondOrderFit, derivatives, fit_second_order
 from .compliance import TABLE1
 from .mujoco_truth import _LENGTHS, _RADII, JOINTS, LINKS, ROOT_HEIGHT, _mujoco, planar_finger_mjcf
 
@@ -152,54 +156,6 @@ class PerturbSettings:
         return float(self.window if self.window is not None else PAPER_TABLE2[self.task]["window"])
 
 
-class FitStatus(IntEnum):
-    """Outcome of :func:`fit_second_order`."""
-
-    OK = 0
-    TOO_FEW_SAMPLES = 1
-    SINGULAR = 2
-
-    @property
-    def message(self) -> str:
-        return {0: "fitted",
-                1: "fewer than 5 samples in the window: lengthen the window or raise the rate",
-                2: "the regressors (z'', z', z, 1) are rank deficient on the window: the signal does not excite "
-                   "the system"}[int(self)]
-
-
-@dataclass(frozen=True)
-class SecondOrderFit:
-    """Least-squares fit of f = m z'' + b z' + k z + f0 (SI units; NaN only with a non-OK status).
-
-    m kg, b N s/m, k N/m, f0 N; rms: residual root mean square, N; samples: samples in the window;
-    condition: condition number of the (column-scaled) regressor matrix; status: :class:`FitStatus`
-    """
-
-    m: float
-    b: float
-    k: float
-    f0: float
-    rms: float
-    samples: int
-    condition: float
-    status: FitStatus
-
-
-@dataclass(frozen=True, eq=False)
-class EndpointReference:
-    """Vertical endpoint stiffness and mass at a posture.
-
-    G: effective endpoint compliance J C J^T at the contact point, (3, 3), m/N (torchhand's Jacobian)
-    kG: 1 / G_zz, N/m (lateral motion free); kG_held: (G_xz^-1)_zz, N/m (the tip held sideways; the planar finger's
-    G has no y stiffness, so the x-z block is inverted); mass: 1 / (e_z^T J M^-1 J^T e_z), kg (MuJoCo's M and J)
-    """
-
-    G: np.ndarray
-    kG: float
-    kG_held: float
-    mass: float
-
-
 @dataclass(frozen=True, eq=False)
 class PerturbResult:
     """A simulated perturbation trial.
@@ -291,118 +247,6 @@ def perturbation_mjcf(settings: PerturbSettings, theta_r, platform_z: float, pla
 """
 
 
-def derivatives(y: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """First and second derivatives of uniformly sampled y (S,) (S >= 5): five-point central differences
-    (fourth order) inside, second-order one-sided differences (``np.gradient``) at the two first and last samples.
-
-    returns: (y', y''), each (S,)
-    """
-    y = np.asarray(y, dtype=np.float64)
-    if y.ndim != 1 or y.shape[0] < 5:
-        raise InputValueError(f"y: expected a 1-D signal of >= 5 samples, got shape {y.shape}")
-    d1 = np.gradient(y, dt, edge_order=2)
-    d2 = np.gradient(d1, dt, edge_order=2)
-    d1[2:-2] = (-y[4:] + 8 * y[3:-1] - 8 * y[1:-3] + y[:-4]) / (12 * dt)
-    d2[2:-2] = (-y[4:] + 16 * y[3:-1] - 30 * y[2:-2] + 16 * y[1:-3] - y[:-4]) / (12 * dt * dt)
-    return d1, d2
-
-
-def fit_second_order(t: np.ndarray, z: np.ndarray, f: np.ndarray, start: float, window: float,
-                     f0: float | None = None) -> SecondOrderFit:
-    """Fit f = m z'' + b z' + k z + f0 by least squares on the samples with start <= t <= start + window.
-
-    f0: the rest force, newtons, when it is measured (the paper's definition, §4.2: "the rest force at the time of
-    perturbation"); None fits it as a fourth unknown
-
-    t: uniform sample times, (S,), s; z: position, (S,), m; f: force, (S,), N; the derivatives of z are taken on the
-    whole signal (:func:`derivatives`), so samples before ``start`` enter the first window samples' stencils, as
-    numerical differentiation of a measured signal does
-    returns: :class:`SecondOrderFit` (status TOO_FEW_SAMPLES or SINGULAR with NaN values when it cannot fit)
-    """
-    t, z, f = (np.asarray(a, dtype=np.float64) for a in (t, z, f))
-    if not (t.ndim == 1 and z.shape == t.shape and f.shape == t.shape):
-        raise InputValueError(f"t, z, f: expected three 1-D arrays of one length, got {t.shape}, {z.shape}, {f.shape}")
-    if t.shape[0] < 5:
-        return SecondOrderFit(*(math.nan,) * 5, int(t.shape[0]), math.inf, FitStatus.TOO_FEW_SAMPLES)
-    dt = float(t[1] - t[0])
-    if not (dt > 0 and np.allclose(np.diff(t), dt, rtol=1e-6, atol=0)):
-        raise InputValueError("t: expected uniformly increasing sample times")
-    zd, zdd = derivatives(z, dt)
-    sel = (t >= start - 1e-9 * dt) & (t <= start + window + 1e-9 * dt)
-    n = int(sel.sum())
-    if n < 5:
-        return SecondOrderFit(*(math.nan,) * 5, n, math.inf, FitStatus.TOO_FEW_SAMPLES)
-    cols = [zdd[sel], zd[sel], z[sel]] + ([np.ones(n)] if f0 is None else [])
-    A = np.stack(cols, axis=1)
-    rhs = f[sel] - (0.0 if f0 is None else float(f0))
-    scale = np.linalg.norm(A, axis=0)
-    if not (scale > 0).all():
-        return SecondOrderFit(*(math.nan,) * 5, n, math.inf, FitStatus.SINGULAR)
-    As = A / scale
-    cond = float(np.linalg.cond(As))
-    if not cond < 1e12:
-        return SecondOrderFit(*(math.nan,) * 5, n, cond, FitStatus.SINGULAR)
-    x, *_ = np.linalg.lstsq(As, rhs, rcond=None)
-    x = x / scale
-    rms = float(np.sqrt(np.mean((A @ x - rhs) ** 2)))
-    f0_out = float(x[3]) if f0 is None else float(f0)
-    return SecondOrderFit(float(x[0]), float(x[1]), float(x[2]), f0_out, rms, n, cond, FitStatus.OK)
-
-
-def _finger_hand(compliance):
-    import tempfile
-    from pathlib import Path
-
-    from ..hand.model import HandModel
-
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "planar_finger.xml"
-        path.write_text(planar_finger_mjcf(compliance))
-        return HandModel.from_mjcf(path)
-
-
-def endpoint_compliance(theta, point_local, compliance) -> np.ndarray:
-    """G = J C J^T, (3, 3), m/N, at the distal link's point ``point_local`` (3,) for joint angles ``theta`` (4,)
-    and joint compliances (4,), with torchhand's point Jacobian (root compliance 0: the forearm is held)."""
-    import torch
-
-    from torchhand.kernels.contact_lcp import effective_compliance
-
-    from ..hand.dynamics import point_jacobian
-
-    c = np.asarray(compliance, dtype=np.float64)
-    hand = _finger_hand(c).to(device="cpu", dtype=torch.float64)
-    q = torch.as_tensor(np.asarray(theta, dtype=np.float64))[None]
-    root = torch.eye(4, dtype=torch.float64)[None].clone()
-    root[0, 2, 3] = ROOT_HEIGHT
-    link = torch.tensor([hand.link_index(LINKS[3])])
-    p = torch.as_tensor(np.asarray(point_local, dtype=np.float64))[None]
-    J = point_jacobian(hand, q, link, p, root, wrt_root=True)[:, 0]          # (1, 3, 6 + 4)
-    C = torch.cat([torch.zeros(1, 6, dtype=torch.float64), torch.from_numpy(c)[None]], -1)
-    return effective_compliance(J, C).numpy()[0]
-
-
-def endpoint_reference(model, data, theta, point_local, compliance) -> EndpointReference:
-    """:class:`EndpointReference` at ``theta`` (4,): G and kG from torchhand, the endpoint mass from MuJoCo
-    (``model``/``data`` of :func:`perturbation_mjcf`, whose first four DOFs are the finger's)."""
-    mujoco = _mujoco()
-    G = endpoint_compliance(theta, point_local, compliance)
-    Gxz = G[np.ix_([0, 2], [0, 2])]
-    d = mujoco.MjData(model)
-    d.qpos[:4] = theta
-    mujoco.mj_forward(model, d)
-    M = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, M, d.qM)
-    distal = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, LINKS[3])
-    p_world = d.xpos[distal] + d.xmat[distal].reshape(3, 3) @ np.asarray(point_local)
-    jacp = np.zeros((3, model.nv))
-    mujoco.mj_jac(model, d, jacp, None, p_world, distal)
-    Jf, Mf = jacp[:, :4], M[:4, :4]
-    inv_mass = float(Jf[2] @ np.linalg.solve(Mf, Jf[2]))
-    return EndpointReference(G=G, kG=float(1.0 / G[2, 2]), kG_held=float(np.linalg.inv(Gxz)[1, 1]),
-                             mass=float(1.0 / inv_mass))
-
-
 def _press_posture(settings: PerturbSettings):
     """The platform top under the posture's fingertip and the spring reference that presses it there.
 
@@ -435,36 +279,42 @@ def _press_posture(settings: PerturbSettings):
     return lows[3], point_local, theta_r
 
 
-def simulate_perturbation(settings: PerturbSettings = PerturbSettings()) -> PerturbResult:
-    """Simulate one perturbation trial and fit it (module docstring).
+@dataclass(frozen=True, eq=False)
+class _Trial:
+    """The signals of a simulated trial at every simulation step (S steps, TIMESTEP apart).
 
-    returns: :class:`PerturbResult`
-    raises: InputValueError when the posture does not put the fingertip lowest
+    force: vertical force of the platform on the finger, (S,), N; pos, rot: the distal link's world position (S, 3)
+    and rotation (S, 3, 3); theta: joint angles at the release, (4,), rad; point_local: the fingertip contact point
+    at the release, distal link frame, (3,), m; n_settle: the release step; sub: simulation steps per sample
     """
-    mujoco = _mujoco()
-    c = settings.joint_compliance
-    theta = np.asarray(settings.posture, dtype=np.float64)
-    tip, point_local, theta_r = _press_posture(settings)
-    xml = perturbation_mjcf(settings, theta_r, float(tip[2]), float(tip[0]))
-    m = mujoco.MjModel.from_xml_string(xml)
-    d = mujoco.MjData(m)
-    d.qpos[:4] = theta
-    d.eq_active[0] = 1
+
+    force: np.ndarray
+    pos: np.ndarray
+    rot: np.ndarray
+    theta: np.ndarray
+    point_local: np.ndarray
+    n_settle: int
+    sub: int
+
+
+def _vertical_force(mujoco, m, d, platform_geom: int, distal_geom: int, f6: np.ndarray) -> float:
+    """The vertical force of the platform on the distal link, summed over their contacts, newtons."""
+    total = 0.0
+    for i in range(d.ncon):
+        con = d.contact[i]
+        if {con.geom1, con.geom2} == {platform_geom, distal_geom}:
+            mujoco.mj_contactForce(m, d, i, f6)
+            fw = con.frame.reshape(3, 3).T @ f6[:3]          # on geom2, world
+            total += fw[2] if con.geom2 == distal_geom else -fw[2]
+    return total
+
+
+def _run_trial(mujoco, m, d, settings: PerturbSettings, theta: np.ndarray, point_local: np.ndarray) -> _Trial:
+    """Settle with the platform latched, release it (the equality off) and record every step (module docstring)."""
     platform_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "platform_geom")
     distal_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{LINKS[3]}_geom")
     distal = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, LINKS[3])
     f6 = np.zeros(6)
-
-    def vertical_force() -> float:
-        total = 0.0
-        for i in range(d.ncon):
-            con = d.contact[i]
-            if {con.geom1, con.geom2} == {platform_geom, distal_geom}:
-                mujoco.mj_contactForce(m, d, i, f6)
-                fw = con.frame.reshape(3, 3).T @ f6[:3]          # on geom2, world
-                total += fw[2] if con.geom2 == distal_geom else -fw[2]
-        return total
-
     n_settle = int(round(settings.settle_time / TIMESTEP))
     n_after = int(round(settings.after_time / TIMESTEP))
     sub = int(round(1.0 / (settings.rate * TIMESTEP)))
@@ -483,11 +333,32 @@ def simulate_perturbation(settings: PerturbSettings = PerturbSettings()) -> Pert
                     break
             d.eq_active[0] = 0
             mujoco.mj_forward(m, d)
-        force[k] = vertical_force()
+        force[k] = _vertical_force(mujoco, m, d, platform_geom, distal_geom, f6)
         pos[k], rot[k] = d.xpos[distal], d.xmat[distal].reshape(3, 3)
         if k < S - 1:
             mujoco.mj_step(m, d)
-    z_world = pos[:, 2] + rot[:, 2, :] @ p_local
+    return _Trial(force, pos, rot, theta_rel, p_local, n_settle, sub)
+
+
+def simulate_perturbation(settings: PerturbSettings = PerturbSettings()) -> PerturbResult:
+    """Simulate one perturbation trial and fit it (module docstring).
+
+    returns: :class:`PerturbResult`
+    raises: InputValueError when the posture does not put the fingertip lowest
+    """
+    mujoco = _mujoco()
+    c = settings.joint_compliance
+    theta = np.asarray(settings.posture, dtype=np.float64)
+    tip, point_local, theta_r = _press_posture(settings)
+    xml = perturbation_mjcf(settings, theta_r, float(tip[2]), float(tip[0]))
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    d.qpos[:4] = theta
+    d.eq_active[0] = 1
+    trial = _run_trial(mujoco, m, d, settings, theta, point_local)
+    force, n_settle, sub, p_local = trial.force, trial.n_settle, trial.sub, trial.point_local
+    S = force.shape[0]
+    z_world = trial.pos[:, 2] + trial.rot[:, 2, :] @ p_local
     t_sim = (np.arange(S) - n_settle) * TIMESTEP
     z_sim = z_world - z_world[n_settle]
     idx = np.arange(0, S, sub)
@@ -497,9 +368,9 @@ def simulate_perturbation(settings: PerturbSettings = PerturbSettings()) -> Pert
     window = settings.fit_window
     fit = fit_second_order(t, z, f, 0.0, window, f0=f_rest)
     fit_free = fit_second_order(t, z, f, 0.0, window)
-    ref = endpoint_reference(m, d, theta_rel, p_local, c)
+    ref = endpoint_reference(m, d, trial.theta, p_local, c)
     in_win = (t >= 0) & (t <= window + 1e-12)
     return PerturbResult(settings=settings, t=t, z=z, f=f, release=int(n_settle // sub), f_rest=f_rest,
-                         theta=theta_rel, point_local=np.asarray(p_local, dtype=np.float64), fit=fit,
+                         theta=trial.theta, point_local=np.asarray(p_local, dtype=np.float64), fit=fit,
                          fit_free_f0=fit_free, reference=ref, lost_contact=bool((f[in_win] <= 0).any()),
                          t_sim=t_sim, z_sim=z_sim, f_sim=force, mjcf=xml)

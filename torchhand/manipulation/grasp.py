@@ -37,7 +37,7 @@ import numpy as np
 
 from .._atomic import atomic_bytes
 from .._npz import read_npz
-from ..scene.builtin.liu import SHADOW_HAND, grasp_paths, shadow_hand_path
+from ..scene.builtin.liu import LIU_SCENES, SHADOW_HAND, grasp_paths, shadow_hand_path
 from ..errors import FileFormatError, InputValueError, ShapeError, UnknownNameError
 
 __all__ = ["Grasp", "load_grasp", "save_grasp", "grasp_hand", "check_grasp_hand", "load_packaged_grasp", "LIMIT_TOL"]

@@ -1,0 +1,103 @@
+"""The resynthesis loop: B rollouts stepped together over T frames (stages 4-6 of :mod:`torchhand.interaction.resynth`).
+
+Per frame k: the compliance C(t_k) scaled by each rollout's grip, one batched
+:func:`~torchhand.interaction.step.quasi_static_step` towards the reference of frame k + 1, the frame's
+:class:`~torchhand.interaction._rollout_record.FrameRecord`, the rollouts whose LCP failed marked (they stop
+counting), and the grip update (:mod:`torchhand.interaction.grip`). Units: metres, seconds, radians, newtons.
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+from ..errors import InputValueError
+from ..kernels.status import SolverStatus
+from ._contacts import BODY_OBJECT, Contacts, TablePlane
+from ._rollout_record import FrameRecord, RolloutRecord
+from .grip import GripSettings, grip_update, init_grip, path_mask
+from .step import StepObject, StepReport, StepSettings, StepState, initial_state, quasi_static_step
+
+__all__ = ["simulate"]
+
+_CONVERGED = int(SolverStatus.CONVERGED)
+
+
+def _start(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tensor, root_r: torch.Tensor,
+           object_pose0: torch.Tensor, settings: StepSettings) -> StepState:
+    """The state at the frame-0 reference; raises InputValueError when the object starts deep inside the hand."""
+    state = initial_state(hand, theta_r[:, 0], root_r[:, 0], object_pose=object_pose0, obj=obj, env=env,
+                          settings=settings)
+    c = state.contacts
+    if bool(((state.contacts.separation < -0.005) & state.contacts.mask & (c.body == BODY_OBJECT)).any()):
+        raise InputValueError("the object starts more than 5 mm inside the hand at frame 0; move the object or start "
+                              "the interaction from an open hand")
+    return state
+
+
+def _slot_forces(rep: StepReport, sc: Contacts, B: int):
+    """f^{k+1} per slot (B, N, 3), newtons, and each slot's friction coefficient (B, N) (0 on inactive slots)."""
+    f = torch.einsum("bnrk,bnk->bnr", rep.D, rep.beta)
+    mu = rep.lcp.mu.new_zeros(B, sc.mask.shape[1]).scatter(1, rep.order, rep.lcp.mu)
+    return f, mu
+
+
+def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor, mu: torch.Tensor) -> FrameRecord:
+    """Frame k on the CPU: the state at t_k and what step k solved."""
+    sc = state.contacts
+    cpu = lambda x: x.detach().cpu()
+    return FrameRecord(q=cpu(state.q), root=cpu(state.root), object_pose=cpu(state.object_pose), C=cpu(Ck),
+                       points=cpu(sc.points), d0=cpu(sc.d0), sep=cpu(sc.separation), body_mask=cpu(sc.mask),
+                       forces=cpu(f), lam=cpu(rep.lam), mu=cpu(mu), status=cpu(rep.status),
+                       residual=cpu(rep.residual), theta_err=cpu(state.theta_err.abs().amax(-1)),
+                       joint_clamp=cpu(rep.joint_clamp))
+
+
+def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tensor, root_r: torch.Tensor,
+             C: torch.Tensor, object_pose0: torch.Tensor, *, settings: StepSettings,
+             grip: GripSettings = GripSettings(), settle_steps: int = 0, progress=None) -> RolloutRecord:
+    """Run B rollouts over T frames (module docstring of :mod:`torchhand.interaction.resynth`, stages 4-6).
+
+    hand: HandModel (the rollouts' dtype); obj: :class:`StepObject` (per-rollout ``masses``/``mus`` allowed);
+    env: the table or None; theta_r: (B, T, D) rad; root_r: (B, T, 4, 4); C: (B, T, 6 + D) (variant scales applied);
+    object_pose0: (B, 4, 4); settings: :class:`StepSettings`; grip: :class:`GripSettings`; progress: callable(str)
+    returns: :class:`~torchhand.interaction._rollout_record.RolloutRecord`: per-frame tensors (CPU), per-rollout
+        ``failed_step`` (B,) (-1: completed), ``failed_status`` (B,) int8, ``grip_events`` list of
+        (rollout, frame, link), ``onset`` (B,); fields also read by key (``rec["q"]``)
+    """
+    B, T, D = theta_r.shape
+    like = theta_r
+    state = _start(hand, obj, env, theta_r, root_r, object_pose0, settings)
+    c = state.contacts
+    hand_obj = (c.body == BODY_OBJECT).cpu()
+    for _ in range(settle_steps):
+        state, _ = quasi_static_step(state, hand, theta_r[:, 0], root_r[:, 0], C[:, 0], obj, env, settings)
+    paths = path_mask(hand, c.link)
+    gs = init_grip(B, 6 + D, c.mask.shape[1], settings.h, grip, like)
+    alive = torch.ones(B, dtype=torch.bool)
+    failed_step = torch.full((B,), -1, dtype=torch.long)
+    failed_status = torch.zeros(B, dtype=torch.int8)
+    frames, events = [], []
+    t0 = time.perf_counter()
+    for k in range(T):
+        Ck = C[:, k] * gs.scale
+        nxt = min(k + 1, T - 1)
+        new, rep = quasi_static_step(state, hand, theta_r[:, nxt], root_r[:, nxt], Ck, obj, env, settings)
+        f, mu = _slot_forces(rep, state.contacts, B)
+        frames.append(_frame(state, rep, Ck, f, mu))
+        bad = alive & (rep.status.cpu() != _CONVERGED)
+        if bool(bad.any()):
+            failed_step[bad] = k
+            failed_status[bad] = rep.status.cpu()[bad]
+            alive &= ~bad
+        gs, ev = grip_update(gs, k, f, rep.lam, state.contacts, mu, paths, grip)
+        events += [e for e in ev if bool(alive[e[0]])]
+        state = new
+        if progress is not None and (k + 1) % 50 == 0:
+            el = time.perf_counter() - t0
+            progress(f"step {k + 1}/{T}: {1e3 * el / (k + 1):.1f} ms/step, {int(alive.sum())}/{B} rollouts running")
+    return RolloutRecord.from_frames(
+        frames, failed_step=failed_step, failed_status=failed_status, grip_events=events, onset=gs.onset.cpu(),
+        slot_link=c.link.cpu(), slot_body=c.body.cpu(), hand_obj=hand_obj,
+        step_time_s=(time.perf_counter() - t0) / max(T, 1))
