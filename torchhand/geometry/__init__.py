@@ -3,7 +3,8 @@
 Modules
     ``objects``     :class:`RigidObject`, :func:`load_object` (OBJ/STL/PLY/GLB), mass properties, watertightness
     ``sdf``         :class:`SDFGrid`: signed-distance grids (negative inside), cached on disk, trilinear queries
-    ``_sdf_build``  building the grids (voxel distances, robust inside/outside for open meshes, the disk cache)
+    ``_sdf_build``  building the grids and their disk cache; ``_sdf_distance`` grid distances; ``_sdf_winding``
+                    inside/outside by winding numbers (robust for open meshes); ``_sdf_common`` shared helpers
     ``euler``       Euler angles in all six orders (BVH channels)
     ``poses``       pose trajectories: interpolation, smoothing, quaternion helpers
 

@@ -65,7 +65,7 @@ from torchhand.kernels.status import SolverStatus
 
 from ..conventions import check_tensor
 from ..errors import InputValueError
-from ..solvers._lemke import lemke
+from ..solvers import lcp as lcp_solvers
 from ._contacts import Contacts, TablePlane, find_contacts, self_pairs
 from ._root_coords import displace_root, root_displacement
 from ._step_lcp import SlotSolution, StepTerms, compact_problem, expand_solution, predicted_motion, step_terms
@@ -162,7 +162,8 @@ def _solve(lcp, mask_c: torch.Tensor, beta0: torch.Tensor, settings: StepSetting
             na = int(counts[b])
             # active slots come first: the LCP of the active contacts is the leading block (beta rows, then lambda)
             rows = torch.cat([torch.arange(na * K), Na * K + torch.arange(na)])
-            out = lemke(Mc[b][rows][:, rows], qc[b][rows], tol=settings.lemke_tol, restarts=settings.lemke_restarts)
+            out = lcp_solvers.solve(Mc[b][rows][:, rows], qc[b][rows], backend="lemke", tol=settings.lemke_tol,
+                                   restarts=settings.lemke_restarts)
             beta[b] = 0
             beta[b, :na] = torch.from_numpy(out.x[: na * K]).reshape(na, K).to(beta)
             status[b], residual[b], iters[b] = int(out.status), out.residual, out.pivots

@@ -50,7 +50,7 @@ class PlanSettings:
     snap_tol: snap tolerance for a grasp without contacts, metres
     max_env_contacts: table contacts kept per frame
     keep_problems: keep every window QP and per-frame LP in ``ForcePlan.records`` (for tests and references)
-    qp_solver: "dense" (one problem at a time in NumPy / LAPACK, :func:`torchhand.solvers._dense.solve_qp_dense`; the
+    qp_solver: "dense" (one problem at a time in NumPy / LAPACK, :func:`torchhand.solvers.qp.solve` with ``backend="dense"``; the
         default, about twice as fast per frame on a CPU) or "kernel" (the batched torch kernel,
         :func:`torchhand.kernels.convex_qp.solve_convex_qp`: ADMM warm-started, then the interior point)
     """

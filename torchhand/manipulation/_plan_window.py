@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..kernels.convex_qp import solve_convex_qp
+from ..solvers import qp as qp_solvers
 from ..kernels.force_plan import FrameLPs, assemble_frame_lps, assemble_window_qp
 from ..kernels.status import SolverStatus
 from ._plan_contacts import _Contacts, _Geometry
@@ -60,7 +60,7 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     method: the kernel's ``method``: "admm" (ADMM with its active-set polish, warm-started when possible; the
     default), "auto" (the kernel's choice: ADMM with a warm start, the interior point without), "ipm" (the
     interior point, cold; the fallback for thin feasible sets, where ADMM stalls or declares infeasibility too
-    early) or "dense" (:func:`torchhand.solvers._dense.solve_qp_dense`: the same interior point and polish in NumPy /
+    early) or "dense" (:func:`torchhand.solvers.qp.solve` with ``backend="dense"``: the same interior point and polish in NumPy /
     LAPACK for this one problem, far less overhead than the batched kernel at B = 1; the warm start is polished
     first, then starts the interior point; what it leaves undecided goes to the kernel).
     Returns (lambda (n, M, 4), basis (n, M, 3, 4), status, objective of Eq. 4 (with its constant), the args,
@@ -71,11 +71,9 @@ def plan_forces(c: _Contacts, geo: _Geometry, k: int, n: int, f_prev: np.ndarray
     M = args["points"].shape[2]
     warm = _shift_warm(z_prev, n, M) if method != "ipm" else None
     if method == "dense":
-        from ..solvers._dense import solve_qp_dense
-
-        res = solve_qp_dense(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm)
+        res = qp_solvers.solve(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, backend="dense", warm_start=warm)
     else:
-        res = solve_convex_qp(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, warm_start=warm, method=method)
+        res = qp_solvers.solve(qp.Q, qp.p, qp.G, qp.h, qp.A, qp.b, backend="kernel", warm_start=warm, method=method)
     status = int(res.status[0])
     obj = float(res.objective[0] + qp.offset[0])
     if records is not None:
@@ -109,12 +107,12 @@ def _shift_warm(z_prev, n: int, M: int):
 def _frame_feasible(c: _Contacts, geo: _Geometry, k: int, n: int, settings: PlanSettings,
                     records: list | None = None) -> tuple[np.ndarray, FrameLPs, torch.Tensor]:
     """Per-frame LP feasibility of the window (Eq. 4 without objective), the n LPs in one batch, decided by
-    :func:`torchhand.solvers._qpth.lp_feasible` with ``method="admm"`` (the convex-QP kernel with Q = 0 on unit rows; feasible
+    :func:`torchhand.solvers.qp.lp_feasible` with ``method="admm"`` (the convex-QP kernel with Q = 0 on unit rows; feasible
     iff the witness's largest unit-row violation is below ``tol (1 + |h|_inf + |b|_inf)``, a bound that does not
     grow with the witness; undecided counts as infeasible).
     Returns (feasible (n,), lps, witness z (n, 4 M)).
     """
-    from ..solvers._qpth import lp_feasible
+    from ..solvers.qp import lp_feasible
 
     args = _window_arrays(c, geo, k, n, settings)
     lps = assemble_frame_lps(**args)
@@ -139,18 +137,16 @@ def _wrench_fit(c: _Contacts, geo: _Geometry, t: int, settings: PlanSettings):
     zero = (basis.abs().sum(-2) == 0).reshape(-1).to(W.dtype)
     Q = 2 * (W.T @ W + 1e-6 * Bd.T @ Bd + torch.diag(zero))
     if settings.qp_solver == "kernel":
-        res = solve_convex_qp(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0])
+        res = qp_solvers.solve(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0], backend="kernel")
     else:
-        from ..solvers._dense import solve_qp_dense
-
-        res = solve_qp_dense(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0])
+        res = qp_solvers.solve(Q[None], (-2 * W.T @ w)[None], lps.G[0], lps.h[0], backend="dense")
     lam = res.z[0].clamp_min(0)
     forces = (basis @ lam.reshape(M, 4, 1)).squeeze(-1)
     return forces.numpy(), (w - W @ lam).numpy()
 
 def _qp(c, geo, k, n, f_prev, settings, records, z_prev=None):
     """The window QP, by default by the dense single-problem solver (``method="dense"``,
-    :func:`torchhand.solvers._dense.solve_qp_dense`: the previous window's solution polished when its slots are the
+    :func:`torchhand.solvers.qp.solve` with ``backend="dense"``: the previous window's solution polished when its slots are the
     same, else the interior point (started from it) and polish in NumPy / LAPACK; what that leaves undecided
     goes to the kernel's interior point, then ADMM). With ``PlanSettings(qp_solver="kernel")`` (for
     comparisons), the batched torch kernel: ADMM (warm-started from the previous

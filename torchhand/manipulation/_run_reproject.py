@@ -8,10 +8,9 @@ import dataclasses
 import numpy as np
 import torch
 
-from ..kernels.convex_qp import solve_convex_qp
 from ..kernels.force_plan import assemble_frame_lps, assemble_window_qp
 from ..kernels.status import SolverStatus
-from ..solvers._dense import solve_qp_dense
+from ..solvers import qp as qp_solvers
 from ._plan_added import allowed_deficit
 from ._plan_contacts import _Contacts, _Geometry
 from ._plan_records import PlanSettings
@@ -56,10 +55,11 @@ def _reproject_once(c: _Contacts, geo: _Geometry, settings: PlanSettings, k: int
     p = -2 * Bd.T @ torch.as_tensor(f_plan.reshape(-1), dtype=Bd.dtype)
     warm = (torch.as_tensor(lam_plan.reshape(1, -1)), None, None)
     if settings.qp_solver == "dense":
-        res = solve_qp_dense(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm)
+        res = qp_solvers.solve(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], backend="dense",
+                               warm_start=warm)
     else:
-        res = solve_convex_qp(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], warm_start=warm,
-                              method="admm")
+        res = qp_solvers.solve(Q[None], p[None], lps.G[0], lps.h[0], lps.A[0], lps.b[0], backend="kernel",
+                               warm_start=warm, method="admm")
     status = int(res.status[0])
     if status != int(SolverStatus.CONVERGED):
         return f_plan, lam_plan, status

@@ -25,7 +25,7 @@ Window loop, for k = 0 .. T-1
        acts on the object: the contacts supply the rest). F_k = B_k lambda_k is kept; F_{k+1} ..
        are re-planned by the next window.
     2. Infeasible (Sec. 4.3): the per-frame LPs (:func:`~torchhand.kernels.force_plan.assemble_frame_lps`,
-       :func:`torchhand.solvers._qpth.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
+       :func:`torchhand.solvers.qp.lp_feasible` with ``method="admm"``) find the first infeasible frame t_a. Hand contacts
        are ordered by decreasing |f_i|; for contact i on link S_i the new hand point is the hand surface sample
        (at the grasp pose) closest to h_i that is not on S_i, paired with its closest object point (normal from
        that face). Pairs are added one at a time, each active from t_a on, and the LPs re-tested; the loop stops
