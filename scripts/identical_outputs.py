@@ -15,8 +15,9 @@ The jobs (each a ``torchhand`` command or a script, run as a user would, under t
 
 What is compared: every file each job writes. ``.npz`` files by their arrays (name, dtype, shape, bytes; not the
 zip container's write times); ``.json`` files with wall-clock figures and the machine description removed (keys
-ending in ``_s``, ``seconds``, ``time``/``timings``, ``per_second``, ``numerics``, ``machine``, ``host``, ``date``); other files by
-their bytes, with the output directory's path replaced by ``<OUT>``; a job's printed lines likewise, with wall-clock
+ending in ``_s`` or ``_ms``, ``seconds``, ``time``/``timings``, ``per_second``, ``numerics``, ``machine``, ``host``, ``date``); other files by
+their bytes, with the output directory's path replaced by ``<OUT>`` and the run's by ``<RUN>`` (also in text
+arrays of ``.npz`` files); a job's printed lines likewise, with wall-clock
 figures (``in 2.8 s``, ``17.0 frames/s``) masked.
 """
 
@@ -39,7 +40,7 @@ SHARED = Path(os.environ.get("TORCHHAND_SHARED_DATA", ROOT.parent / "shared" / "
 SYNTH_SCENES = ["box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "cube-turn"]
 MANIP_SCENES = ["liu-drag", "liu-lift", "liu-pivot", "liu-push", "liu-roll", "liu-press", "liu-shadow-lift",
                 "liu-two-hand-lift"]
-VOLATILE_KEY = re.compile(r"(_s$|^s$|seconds|time|per_second|numerics|machine|host|date|created|elapsed|wall)", re.I)
+VOLATILE_KEY = re.compile(r"(_s$|^s$|_ms$|seconds|time|per_second|numerics|machine|host|date|created|elapsed|wall)", re.I)
 VOLATILE_TEXT = [
     (re.compile(r"\d+(\.\d+)?(e[-+]?\d+)? ?(s|ms|min|frames/s|nodes/s|steps/s|it/s|/s)\b"), "<T>"),
     (re.compile(r"\d+:\d\d(:\d\d)?"), "<CLOCK>"),
@@ -89,6 +90,8 @@ def _clean_json(x):
 
 def _clean_text(text: str, out: Path) -> str:
     text = text.replace(str(out.resolve()), "<OUT>").replace(str(out), "<OUT>")
+    run_dir = out.resolve().parent          # inputs that are other jobs of the same run (a synthesis result)
+    text = text.replace(str(run_dir), "<RUN>")
     for pat, rep in VOLATILE_TEXT:
         text = pat.sub(rep, text)
     return text
@@ -100,7 +103,11 @@ def file_digest(path: Path, out: Path) -> str:
         with np.load(path, allow_pickle=False) as z:
             for key in sorted(z.files):
                 a = np.ascontiguousarray(z[key])
-                h.update(f"{key}|{a.dtype.str}|{a.shape}".encode())
+                kind = a.dtype.str
+                if a.dtype.kind == "U":          # text (settings records) may name the run's directories
+                    a = np.array([_clean_text(str(s), out) for s in a.ravel()]).reshape(a.shape)
+                    kind = "U"
+                h.update(f"{key}|{kind}|{a.shape}".encode())
                 h.update(a.tobytes())
     elif path.suffix == ".json":
         data = json.loads(_clean_text(path.read_text(encoding="utf-8"), out).replace("<T>", "0"))
