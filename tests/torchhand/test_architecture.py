@@ -37,25 +37,13 @@ def test_imports_only_go_downward(figures):
     assert figures["layer_violations"] == [], "\n".join(figures["layer_violations"])
 
 
-# Still over the limits: Liu's per-frame synthesis (its nested linearisation) is not yet split into stages. Nothing
-# may join this list; when it is fixed, the expected failure below stops and the tests pass as they are.
-KNOWN_MODULES = {"torchhand.manipulation.synth"}
-KNOWN_FUNCTIONS = {"torchhand.manipulation.synth.synthesize_frame",
-                   "torchhand.manipulation.synth.synthesize_frame.linearise"}
-
-
 def test_no_module_over_the_limit(figures):
-    over = {name for name, _ in figures["modules_over_limit"]}
-    assert over <= KNOWN_MODULES, f"modules over {arch.MODULE_LINES} lines: {figures['modules_over_limit']}"
-    if over:
-        pytest.xfail(f"still over {arch.MODULE_LINES} lines: {figures['modules_over_limit']}")
+    assert figures["modules_over_limit"] == [], f"modules over {arch.MODULE_LINES} lines: {figures['modules_over_limit']}"
 
 
 def test_no_function_over_the_limit(figures):
-    over = {name for name, _ in figures["functions_over_limit"]}
-    assert over <= KNOWN_FUNCTIONS, f"functions over {arch.FUNCTION_LINES} lines: {figures['functions_over_limit']}"
-    if over:
-        pytest.xfail(f"still over {arch.FUNCTION_LINES} lines: {figures['functions_over_limit']}")
+    assert figures["functions_over_limit"] == [], (
+        f"functions over {arch.FUNCTION_LINES} lines: {figures['functions_over_limit']}")
 
 
 def test_long_functions_are_named_kernel_solver_loops_with_a_reason(figures):

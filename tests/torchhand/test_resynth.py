@@ -264,10 +264,10 @@ def test_load_interaction_roundtrip(tmp_path):
 def test_unsolved_lcp_stops_only_that_rollout(tmp_path, monkeypatch, capsys):
     """A Lemke failure at step 5 of rollout 1 stops rollout 1 there; rollout 0 completes. When every rollout fails
     the command exits 1 and stats.json names the step."""
-    import torchhand.interaction.step as step_module
+    import torchhand.solvers.lcp as lcp_module              # the step solves through torchhand.solvers.lcp.solve
     from torchhand.cli import main
 
-    real = step_module.lemke
+    real = lcp_module.lemke
     calls = {"n": 0}
 
     def failing(M, q, **kw):
@@ -277,11 +277,11 @@ def test_unsolved_lcp_stops_only_that_rollout(tmp_path, monkeypatch, capsys):
             return out._replace(status=SolverStatus.UNBOUNDED)
         return out
 
-    monkeypatch.setattr(step_module, "lemke", failing)
+    monkeypatch.setattr(lcp_module, "lemke", failing)
     rec, _ = run_pinch([0.05, 0.05], duration=0.2)
     assert rec["failed_step"].tolist() == [-1, 5]
 
-    monkeypatch.setattr(step_module, "lemke", lambda M, q, **kw: real(M, q, **kw)._replace(
+    monkeypatch.setattr(lcp_module, "lemke", lambda M, q, **kw: real(M, q, **kw)._replace(
         status=SolverStatus.UNBOUNDED))
     scene_dir, inter = pinch_files(tmp_path / "in")
     out = tmp_path / "out"

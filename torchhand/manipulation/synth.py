@@ -70,22 +70,16 @@ import numpy as np
 import torch
 
 from ..errors import InputValueError
-from ._frame_geometry import _axis_param, _closest_segment_points, _pad, _tangents, exp_rot, rotvec
+from ._frame_geometry import _axis_param, _tangents, exp_rot, rotvec
+from ._frame_linearise import FrameSetup, linearise
 from ._frame_qp import _solve, dense_qp  # noqa: F401  (_solve: the tests reach it here)
+from ._frame_torques import (ELASTIC_WEIGHT, SETTLE_WEIGHT, TOUCH_WEIGHT,  # noqa: F401  (their home until moved)
+                             _pose_batch, torques)
 from .torque_derivs import (
     TreeOrder,
-    point_jacobian,
-    torques_and_derivatives,
     tree_order,
     tree_state,
 )
-
-SETTLE_WEIGHT = 100.0
-"""Weight of the soft no-slip rows of the first frame, N m per metre."""
-ELASTIC_WEIGHT = 1000.0
-"""l1 weight (per metre) of the Eq. 7 rows (and of non-penetration) in the merit and in elastic mode."""
-TOUCH_WEIGHT = 1000.0
-"""l1 weight (per metre) of the Eq. 6 rows in the merit and in elastic mode."""
 
 __all__ = ["SynthSettings", "HandFrame", "FrameResult", "SynthContext", "synthesize_frame", "torques", "dense_qp",
            "rotvec", "exp_rot"]
@@ -229,32 +223,6 @@ class SynthContext:
         return torques(self.hand, q, root, links, h, f, self.gravity)
 
 
-def torques(hand, q, root, links, h, f, gravity=(0.0, 0.0, -9.81)) -> np.ndarray:
-    """The generalised force the hand must produce to hold contact forces f at rest (Eq. 5 without inertia):
-    ``n(q) + sum_i J_i(q, h_i)^T f_i``.
-
-    hand: HandModel (float64); q: (B, D) rad; root: (B, 4, 4) T_world_hand; links: (H,) link indices; h: (B, H, 3)
-    link-frame points, metres; f: (H, 3) or (B, H, 3) forces of the hand on the object, world, newtons.
-    returns: (B, 6 + D): torque about the root origin (world, N m), force (world, N), joint torques (N m)
-    """
-    q = torch.as_tensor(np.asarray(q), dtype=torch.float64)
-    root = torch.as_tensor(np.asarray(root), dtype=torch.float64)
-    B, L = q.shape[0], hand.num_links
-    # n(q) = sum_l J_l(com_l)^T (-m_l g): the links' weights enter as point forces at their centres of mass, so
-    # one Jacobian pass gives gravity and contact terms together
-    g = torch.as_tensor(gravity, dtype=torch.float64)
-    w = (-hand.link_mass.double()[:, None] * g).expand(B, L, 3)
-    pts = hand.link_com.double().expand(B, L, 3)
-    idx = torch.arange(L)
-    if len(links):
-        fb = torch.as_tensor(np.broadcast_to(np.asarray(f), (B, len(links), 3)).copy(), dtype=torch.float64)
-        w = torch.cat([fb, w], 1)
-        pts = torch.cat([torch.as_tensor(np.asarray(h), dtype=torch.float64).expand(B, len(links), 3), pts], 1)
-        idx = torch.cat([torch.as_tensor(np.asarray(links), dtype=torch.long), idx])
-    u = hand.contact_torques(q, root, idx, pts, w)
-    return u.numpy()
-
-
 # ------------------------------------------------------------------------------------------------ one frame
 def _qp_step(L, lm, damp, base, nv, C_box, project=False):
     """The step: Gauss-Newton QP damped by ``lm`` (Levenberg-Marquardt, scaled by the per-iteration step sizes
@@ -262,20 +230,20 @@ def _qp_step(L, lm, damp, base, nv, C_box, project=False):
     if project:
         Hm, g = damp.copy(), np.zeros(nv)
     else:
-        Hm = 2 * (L['Jr'].T @ L['Jr'] + L['Jp'].T @ L['Jp']) + lm * damp
-        g = 2 * (L['Jr'].T @ L['r'] + L['Jp'].T @ L['pr'])
-    lo, hi = np.maximum(L['vlo'], -4 * base), np.minimum(L['vhi'], 4 * base)
-    C = np.concatenate([L['C'], C_box], 0)
-    d = np.concatenate([L['d'], hi, -lo])
-    dx, status, _ = dense_qp(Hm, g, L['A'], L['b'], C, d)
+        Hm = 2 * (L.Jr.T @ L.Jr + L.Jp.T @ L.Jp) + lm * damp
+        g = 2 * (L.Jr.T @ L.r + L.Jp.T @ L.pr)
+    lo, hi = np.maximum(L.vlo, -4 * base), np.minimum(L.vhi, 4 * base)
+    C = np.concatenate([L.C, C_box], 0)
+    d = np.concatenate([L.d, hi, -lo])
+    dx, status, _ = dense_qp(Hm, g, L.A, L.b, C, d)
     if status != 0:                                   # elastic mode: l1-penalised slacks on the equalities
-        A, b = L['A'], L['b']                         # and on the receding-slack rows (the first m_app of C)
-        m, ma = A.shape[0], L['m_app']
+        A, b = L.A, L.b                         # and on the receding-slack rows (the first m_app of C)
+        m, ma = A.shape[0], L.m_app
         ne = nv + 2 * m + ma
         He = np.zeros((ne, ne))
         He[:nv, :nv] = Hm
         He[nv:, nv:] = 1e-9 * np.eye(2 * m + ma)
-        ge = np.concatenate([g, L['w'], L['w'], np.full(ma, ELASTIC_WEIGHT)])
+        ge = np.concatenate([g, L.w, L.w, np.full(ma, ELASTIC_WEIGHT)])
         Ae = np.concatenate([A, np.eye(m), -np.eye(m), np.zeros((m, ma))], 1)
         Ce = np.zeros((C.shape[0] + 2 * m + ma, ne))
         Ce[:C.shape[0], :nv] = C
@@ -295,23 +263,6 @@ def _apply_step(x, dx, N):
     root[:3, :3] = exp_rot(dx[:3]) @ root[:3, :3]
     root[:3, 3] = root[:3, 3] + dx[3:6]
     return q + dx[6:N], root, np.clip(s + dx[N:], 0.0, 1.0)
-
-
-def _pose_batch(root: np.ndarray, q: np.ndarray, h: np.ndarray, eps: float, with_h: bool):
-    """Base point plus one forward-difference perturbation per variable (root twist, q, and h when ``with_h``)."""
-    D, H = q.shape[0], h.shape[0]
-    nv = 6 + D + (3 * H if with_h else 0)
-    Q = np.repeat(q[None], nv + 1, 0)
-    Rt = np.repeat(root[None], nv + 1, 0)
-    Hh = np.repeat(h[None], nv + 1, 0)
-    E = exp_rot(eps * np.eye(3))
-    for j in range(3):
-        Rt[1 + j, :3, :3] = E[j] @ root[:3, :3]
-        Rt[4 + j, j, 3] += eps
-    Q[7:7 + D] += eps * np.eye(D)
-    if with_h:
-        Hh[7 + D:] += eps * np.eye(3 * H).reshape(3 * H, H, 3)
-    return Q, Rt, Hh
 
 
 def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links: np.ndarray, forces: np.ndarray,
@@ -379,224 +330,24 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
 
     floor: dict = {}                                     # non-penetration floors, fixed at the frame's start
 
-    def linearise(q, root, s):
-        """Residuals, constraints and bounds at (q, root, s); also the hand points h."""
-        c = np.where(movable[:, None], ca + s[:, None] * seg, start.h)    # axis points, link frame
-        if analytic:                                                       # one kinematics pass serves all below
-            ts = tree_state(ctx.order, q, root)
-            T = ts.T
-        else:
-            T = hand.forward_kinematics(torch.as_tensor(q)[None], torch.as_tensor(root)[None])[0].numpy()
-        Rl = T[links, :3, :3]
-        cw = np.einsum("hij,hj->hi", Rl, c) + T[links, :3, 3]
-        ax_w = np.einsum("pij,pj->pi", T[ctx.ax_link, :3, :3], ctx.ax_local) + T[ctx.ax_link, :3, 3]
-        qpts = np.concatenate([cw, ax_w], 0)
-        sd, grad = ctx.sdf_with_grad((qpts - os_) @ Rs)
-        grad = grad @ Rs.T                                                 # world gradient
-        sd_c, g_c, sd_a, g_a = sd[:H], grad[:H], sd[H:], grad[H:]
-        n_c = g_c / np.maximum(np.linalg.norm(g_c, axis=-1, keepdims=True), 1e-12)
-        h = np.where(movable[:, None], c - cr[:, None] * np.einsum("hji,hj->hi", Rl, n_c), start.h)
-        # ---- the objective residual and its Jacobian (analytic, or forward differences in one batched call)
-        if st.objective == "torque" and analytic:
-            u, du_dx, du_dp = torques_and_derivatives(ctx.order, ts, links, h, f_use, ctx.gravity)
-            r = u - ctx.u_bar
-            Jr = np.zeros((N, nv))
-            Jr[:, :N] = du_dx
-            Jr[:, N:] = np.einsum("hnc,hc->nh", du_dp, np.einsum("hij,hj->hi", Rl, seg)) * movable[None]
-        elif st.objective == "torque":
-            Qb, Rb, Hb = _pose_batch(root, q, h, 1e-7, False)
-            Hs = np.repeat(h[None], H, 0)
-            Hs[np.arange(H), np.arange(H)] += 1e-7 * seg
-            ub = torques(hand, np.concatenate([Qb, np.repeat(q[None], H, 0)]),
-                         np.concatenate([Rb, np.repeat(root[None], H, 0)]), links, np.concatenate([Hb, Hs]), f_use,
-                         ctx.gravity)
-            r = ub[0] - ctx.u_bar
-            Jr = ((ub[1:] - ub[0]) / 1e-7).T
-            Jr[:, N:] *= movable[None]
-        else:
-            r, Jr = np.zeros(0), np.zeros((0, nv))
-        rv = rotvec(root[:3, :3] @ R_prev.T)
-        pr = np.concatenate([wq * rv, wx * (root[:3, 3] - prev.root[:3, 3]), wq * (q - prev.q),
-                             st.prox_h * seg_len * (s - s_prev)])
-        Jp = Jp_const
-        # ---- finger-finger pairs (addition (a)): capsule pairs of different fingers within 1 cm
-        if len(ctx.pairs):
-            i0, i1 = ctx.pairs_np[:, 0], ctx.pairs_np[:, 1]
-            a0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_a[i0]) + T[i0, :3, 3]
-            b0 = np.einsum("pij,pj->pi", T[i0, :3, :3], ctx.cap_b[i0]) + T[i0, :3, 3]
-            a1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_a[i1]) + T[i1, :3, 3]
-            b1 = np.einsum("pij,pj->pi", T[i1, :3, :3], ctx.cap_b[i1]) + T[i1, :3, 3]
-            pa, pb = _closest_segment_points(a0, b0, a1, b1)
-            depth = ctx.cap_r[i0] + ctx.cap_r[i1] - np.linalg.norm(pa - pb, axis=-1)
-            near_f = np.flatnonzero(depth > -0.01)
-            depth_all = depth
-        else:
-            near_f = np.zeros(0, dtype=np.int64)
-            depth_all = None
-        m_ = len(near_f)
-        if m_:
-            la, lb_ = ctx.pairs_np[near_f, 0], ctx.pairs_np[near_f, 1]
-            f_pts = np.concatenate([pa[near_f], pb[near_f]], 0)
-            f_lks = np.concatenate([la, lb_])
-        # ---- kinematics of the points involved (one point Jacobian call: contacts, material points, axis samples
-        # and the pairs' closest points)
-        xm = np.einsum("hij,hj->hi", Rl, prev.h) + T[links, :3, 3]
-        pts_link = np.concatenate([links, links, ctx.ax_link])
-        n_main = pts_link.shape[0]
-        if analytic:
-            if m_:
-                J_all = point_jacobian(ctx.order, ts, np.concatenate([pts_link, f_lks]),
-                                       np.concatenate([cw, xm, ax_w, f_pts], 0))
-            else:
-                J_all = point_jacobian(ctx.order, ts, pts_link, np.concatenate([cw, xm, ax_w], 0))
-        else:
-            pts_local = np.concatenate([c, prev.h, ctx.ax_local], 0)
-            J_all = hand.point_jacobian(torch.as_tensor(q)[None], torch.as_tensor(pts_link),
-                                        torch.as_tensor(pts_local), torch.as_tensor(root)[None],
-                                        wrt_root=True)[0].numpy()
-            if m_:
-                loc = np.einsum("pji,pj->pi", T[f_lks, :3, :3], f_pts - T[f_lks, :3, 3])
-                J_all = np.concatenate([J_all, hand.point_jacobian(
-                    torch.as_tensor(q)[None], torch.as_tensor(f_lks), torch.as_tensor(loc),
-                    torch.as_tensor(root)[None], wrt_root=True)[0].numpy()], 0)
-        Jc, Jm, Ja = J_all[:H], J_all[H:2 * H], J_all[2 * H:n_main]
-        Jm_pad = _pad(Jm, nv)
-        A_rows, b_rows, C_rows, d_rows = [], [], [], []
-        eq_viol, in_viol, soft_r, soft_J = [], [], [], []
-        w_rows = []
-        G_rows, g_rows = [], []                                 # receding-slack rows (elastic like the equalities)
-        Jcf_all = np.zeros((H, 3, nv))
-        Jcf_all[:, :, :N] = Jc
-        for i in range(H):
-            Jcf = Jcf_all[i]
-            if movable[i]:
-                Jcf[:, N + i] = Rl[i] @ seg[i]
-            if i in approach:                                   # receding slack towards its object point
-                gap = cw[i] - cr[i] * 0 - (prev.p[i] @ Rs.T + os_)
-                gn = np.linalg.norm(gap)
-                if gn > 1e-9:
-                    G_rows.append(gap / gn @ Jcf)
-                    g_rows.append(approach[i] - gn)
-                    in_viol.append(gn - approach[i])
-                continue
-            if not active[i]:
-                continue
-            if movable[i]:                                      # Eq. 6: the capsule touches the object
-                row = g_c[i] @ Jcf
-                A_rows.append(row)
-                b_rows.append(cr[i] - sd_c[i])
-                eq_viol.append(abs(cr[i] - sd_c[i]))
-                w_rows.append(TOUCH_WEIGHT)
-                # and, when elastic mode relaxes Eq. 6, it does so away from the object: the contact's own axis
-                # point keeps the non-penetration bound of the axis samples (which may miss it between samples)
-                C_rows.append(-row)
-                d_rows.append(sd_c[i] - cr[i] - min(-st.margin, sd_c[i] - cr[i]))
-            else:
-                A_rows.append(g_c[i] @ Jcf)
-                b_rows.append(-sd_c[i])
-                eq_viol.append(abs(sd_c[i]))
-                w_rows.append(TOUCH_WEIGHT)
-            if closing[i]:
-                continue
-            # Eq. 7 on the material points of h^{k-1}
-            rel = xm[i] - y_prev[i] - d0[i]
-            Jrel = Jm_pad[i]
-            t1, t2 = tangents[i]
-            if i in slide_dir:
-                fhat, t3 = slide_dir[i]
-                v3, vf = t3 @ rel, fhat @ rel
-                A_rows.append(t3 @ Jrel)
-                b_rows.append(-v3)
-                eq_viol.append(abs(v3))
-                w_rows.append(ELASTIC_WEIGHT)
-                C_rows.append(-fhat @ Jrel)
-                d_rows.append(vf)
-                in_viol.append(-vf)
-            elif settle:                                         # soft: weighted residual rows
-                for t in (t1, t2):
-                    soft_r.append(SETTLE_WEIGHT * (t @ rel))
-                    soft_J.append(SETTLE_WEIGHT * (t @ Jrel))
-            else:
-                for t in (t1, t2):
-                    v = t @ rel
-                    A_rows.append(t @ Jrel)
-                    b_rows.append(-v)
-                    eq_viol.append(abs(v))
-                    w_rows.append(ELASTIC_WEIGHT)
-        # the inequality rows in blocks: receding slack first (the first m_app rows), then the contacts' rows
-        C_blocks = [np.array(G_rows + C_rows).reshape(-1, nv)]
-        d_blocks = [np.array(g_rows + d_rows, dtype=np.float64)]
-        # non-penetration of the capsule axes (object and table); only points within 1 cm of their limit. The
-        # floor (-margin, or the depth a point already had at the frame's start, which may not grow) is fixed at
-        # the frame's first linearisation: a point that an iterate moved in from afar is pushed back out, and the
-        # new depth counts as a violation in the merit (a step that creates it is rejected)
-        ax_r = ctx.ax_radius
-        lim_obj = sd_a - ax_r
-        lim_tab = ax_w[:, 2] - ax_r - ctx.table if ctx.table is not None else None
-        if not floor:
-            floor["obj"] = np.minimum(-st.margin, lim_obj)
-            floor["tab"] = np.minimum(-st.margin, lim_tab) if lim_tab is not None else None
-            floor["ff"] = np.minimum(-st.margin, -depth_all) if depth_all is not None else None
-        lb = floor["obj"]
-        near = np.flatnonzero(lim_obj < 0.01)
-        C_blocks.append(_pad(-np.einsum("pc,pcn->pn", g_a[near], Ja[near]), nv))
-        d_blocks.append(lim_obj[near] - lb[near])
-        pen = [np.maximum(lb - lim_obj, 0.0).max(initial=0.0)]
-        if lim_tab is not None:
-            lbt = floor["tab"]
-            near = np.flatnonzero(lim_tab < 0.01)
-            C_blocks.append(_pad(-Ja[near, 2], nv))
-            d_blocks.append(lim_tab[near] - lbt[near])
-            pen.append(np.maximum(lbt - lim_tab, 0.0).max(initial=0.0))
-        # finger-finger separation (addition (a)): capsule pairs of different fingers within 1 cm keep their axis
-        # distance >= r_a + r_b - margin along the line between their closest axis points; a pair already deeper
-        # may not go deeper
-        if m_:
-            nrm = pa[near_f] - pb[near_f]
-            nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-12)
-            Jf = J_all[n_main:]
-            Jd = np.einsum("pc,pcn->pn", nrm, Jf[:m_] - Jf[m_:])
-            sep = -depth[near_f]
-            lbf = floor["ff"][near_f]
-            C_blocks.append(_pad(-Jd, nv))
-            d_blocks.append(sep - lbf)
-            pen.append(np.maximum(lbf - sep, 0.0).max(initial=0.0))
-        in_viol.extend(float(v) for v in pen)
-        # bounds: joint limits and speeds, root speeds, the axis parameter
-        dq_max = st.joint_speed * dt * (1.0 - 1e-9)        # strictly inside: checkers compare with >
-        lo = np.minimum(np.maximum(ctx.q_lo, prev.q - dq_max) - q, 0.0)
-        hi = np.maximum(np.minimum(ctx.q_hi, prev.q + dq_max) - q, 0.0)
-        s_lo = np.minimum(np.maximum(0.0, s_prev - s_step) - s, 0.0)
-        s_hi = np.maximum(np.minimum(1.0, s_prev + s_step) - s, 0.0)
-        vlo = np.concatenate([np.minimum(-st.root_rate * dt - rv, 0.0),
-                              np.minimum(prev.root[:3, 3] - st.root_speed * dt - root[:3, 3], 0.0), lo, s_lo])
-        vhi = np.concatenate([np.maximum(st.root_rate * dt - rv, 0.0),
-                              np.maximum(prev.root[:3, 3] + st.root_speed * dt - root[:3, 3], 0.0), hi, s_hi])
-        objective = float(r @ r) if st.objective == "torque" else float(((q - prev.q) ** 2).sum() + (rv ** 2).sum())
-        if soft_r:
-            pr, Jp = np.concatenate([pr, soft_r]), np.concatenate([Jp, np.array(soft_J)], 0)
-        viol = max([0.0] + [float(v) for v in eq_viol] + [float(v) for v in in_viol])
-        merit = (float(r @ r) + float(pr @ pr) + float(np.dot(w_rows, eq_viol))
-                 + ELASTIC_WEIGHT * sum(max(0.0, v) for v in in_viol))
-        m_app = len(G_rows)
-        return dict(r=r, Jr=Jr, pr=pr, Jp=Jp, A=np.array(A_rows).reshape(-1, nv), b=np.array(b_rows), w=np.array(w_rows),
-                    C=np.concatenate(C_blocks, 0), d=np.concatenate(d_blocks), m_app=m_app,
-                    vlo=vlo, vhi=vhi, h=h,
-                    gap=np.where(movable, sd_c - cr, sd_c),
-                    objective=objective, viol=viol, merit=merit)
+    setup = FrameSetup(H=H, Jp_const=Jp_const, N=N, R_prev=R_prev, Rs=Rs, active=active, analytic=analytic,
+                       approach=approach, ca=ca, closing=closing, cr=cr, ctx=ctx, d0=d0, dt=dt, f_use=f_use,
+                       floor=floor, hand=hand, links=links, movable=movable, nv=nv, os_=os_, prev=prev,
+                       s_prev=s_prev, s_step=s_step, seg=seg, seg_len=seg_len, settle=settle, slide_dir=slide_dir,
+                       st=st, start=start, tangents=tangents, wq=wq, wx=wx, y_prev=y_prev)
 
     damp = np.diag(1.0 / base ** 2)
 
     x = (start.q.copy(), start.root.copy(), _axis_param(ca, seg, start.h))
-    L = linearise(*x)
+    L = linearise(setup, *x)
     lm, it, converged = 1e-5, 0, False
     max_iters = st.max_iters * (3 if settle else 1)        # the first frame starts farther from feasibility
     while it < max_iters:
         it += 1
         dx = _qp_step(L, lm, damp, base, nv, C_box)
         xn = _apply_step(x, dx, N)
-        Ln = linearise(*xn)
-        if Ln['merit'] > L['merit'] * (1 + 1e-12) + 1e-15:
+        Ln = linearise(setup, *xn)
+        if Ln.merit > L.merit * (1 + 1e-12) + 1e-15:
             lm *= 10.0                                     # backtrack: more damping, a shorter step
             if lm > 1e3:
                 break
@@ -607,13 +358,13 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
             converged = True
             break
     for _ in range(4):                                    # restore the constraints (least-norm steps)
-        if L['viol'] <= 1e-9:
+        if L.viol <= 1e-9:
             break
         x = _apply_step(x, _qp_step(L, 0.0, damp, base, nv, C_box, project=True), N)
-        L = linearise(*x)
+        L = linearise(setup, *x)
     q, root, _ = x
-    return FrameResult(frame=HandFrame(q=q, root=root, h=L['h'], p=None), objective=L['objective'], iterations=it,
-                       converged=converged, violation=L['viol'], gap=L['gap'])
+    return FrameResult(frame=HandFrame(q=q, root=root, h=L.h, p=None), objective=L.objective, iterations=it,
+                       converged=converged, violation=L.viol, gap=L.gap)
 
 
 _TREES: dict = {}

@@ -53,7 +53,10 @@ def _backend(name) -> Callable:
 
 def check_options(fn: Callable, where: str, options: dict) -> None:
     """An InputValueError naming the unknown keyword options of ``fn`` (and the known ones)."""
-    known = [n for n, p in inspect.signature(fn).parameters.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
+    params = inspect.signature(fn).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return                                          # a backend that takes any keyword checks its own
+    known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY]
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise InputValueError(f"{where}: unknown option(s) {', '.join(unknown)}; its options: {', '.join(known)}")
