@@ -3,7 +3,6 @@ round trips, the parser's coverage of MJCF forms, and errors on bad input."""
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -125,8 +124,8 @@ def test_loaded_robot_hand_fk_matches_mujoco(parts):
 @pytest.mark.parametrize("parts", [("shadow_hand", "right_hand.xml"), ("allegro_hand", "right_hand.xml")],
                          ids=["shadow", "allegro"])
 def test_loaded_geometry_matches_mujoco_geom_frames(parts):
-    """Collision geoms (visual ones skipped) in MuJoCo's order: primitives have MuJoCo's pose and size; mesh geoms
-    keep the file's vertex frame, so pose @ T(mesh_pos, mesh_quat) is MuJoCo's geom pose and the vertices match."""
+    """Collision geoms (visual ones skipped) in MuJoCo's order, as MuJoCo compiled them: primitives with MuJoCo's
+    pose and size, mesh geoms with MuJoCo's (re-centred) vertices and pose."""
     path = _hand_file(*parts)
     hand = load_mjcf(path)
     m = mujoco.MjModel.from_xml_path(str(path))
@@ -141,12 +140,11 @@ def test_loaded_geometry_matches_mujoco_geom_frames(parts):
         if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
             n_mesh += 1
             mid = m.geom_dataid[g]
-            T_mesh = _pose(_quat_to_mat(m.mesh_quat[mid]), m.mesh_pos[mid])
-            np.testing.assert_allclose(ours @ T_mesh, ref, atol=1e-9)
+            np.testing.assert_allclose(ours, ref, atol=1e-12)
             V_mj = m.mesh_vert[m.mesh_vertadr[mid] : m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
             V_ours = hand.geoms.meshes[int(hand.geoms.mesh_index[k])][0].numpy()
             assert V_ours.shape == V_mj.shape
-            np.testing.assert_allclose(V_ours, V_mj @ T_mesh[:3, :3].T + T_mesh[:3, 3], atol=1e-7)  # float32 store
+            np.testing.assert_array_equal(V_ours, V_mj)
         else:
             np.testing.assert_allclose(ours, ref, atol=1e-9)
             n = {mujoco.mjtGeom.mjGEOM_SPHERE: 1, mujoco.mjtGeom.mjGEOM_CAPSULE: 2,
@@ -340,14 +338,11 @@ def test_mjcf_forms_match_mujoco(tmp_path):
         errs.append(_fk_errors(ours, ref))
         assert bid >= 0
     assert max(max(e) for e in errs) < TOL
-    # Geom frames (primitives directly; the mesh through MuJoCo's re-centring transform).
+    # Geom frames: MuJoCo's compiled ones (meshes re-centred by MuJoCo, their vertices with them).
     coll = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
     for k, g in enumerate(coll):
         T = hand.geoms.pose[k].numpy()
-        if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
-            mid = m.geom_dataid[g]
-            T = T @ _pose(_quat_to_mat(m.mesh_quat[mid]), m.mesh_pos[mid])
-        np.testing.assert_allclose(T, _pose(_quat_to_mat(m.geom_quat[g]), m.geom_pos[g]), atol=1e-9)
+        np.testing.assert_allclose(T, _pose(_quat_to_mat(m.geom_quat[g]), m.geom_pos[g]), atol=1e-12)
 
 
 def test_ball_joint_becomes_three_hinges(tmp_path):
@@ -378,30 +373,32 @@ def test_missing_file(tmp_path):
 
 def test_malformed_xml(tmp_path):
     p = _write(tmp_path, "<mujoco><worldbody><body name='a'></worldbody></mujoco>")
-    with pytest.raises(FileFormatError, match=re.escape(str(p)) + ".*malformed XML"):
+    with pytest.raises(FileFormatError, match=re.escape(str(p)) + ".*MuJoCo cannot compile it: XML parse error"):
         load_mjcf(p)
 
 
 def test_unknown_joint_type(tmp_path):
     p = _write(tmp_path, "<mujoco><worldbody><body name='a'><body name='b'>"
                          "<joint name='jj' type='twist'/></body></body></worldbody></mujoco>")
-    with pytest.raises(FileFormatError, match=re.escape(str(p)) + ".*jj.*unknown joint type 'twist'"):
+    with pytest.raises(FileFormatError, match=re.escape(str(p)) + ".*invalid keyword: 'twist'"):
         load_mjcf(p)
 
 
 @pytest.mark.parametrize("body, message", [
-    ("<geom type='mesh' mesh='gone'/>", "mesh file not found"),
-    ("<include file='x.xml'/>", "<include> is not supported"),
-    ("<geom class='nope' size='0.1'/>", "unknown default class 'nope'"),
-    ("<body name='b' quat='1 0 0'/>", "quat expects 4 numbers"),
-    ("<body name='b'><joint name='j' range='1 0' limited='true'/></body>", "lower bound exceeds"),
-    ("<geom type='plane' size='1 1 1'/>", "'plane' is not supported"),
+    ("<geom type='mesh' mesh='gone'/>", r"Error opening file '.*gone\.stl'"),
+    ("<include file='x.xml'/>", r"Error opening file '.*x\.xml'"),
+    ("<geom class='nope' size='0.1'/>", r"unknown default class name 'nope'"),
+    ("<body name='b' quat='1 0 0'/>", r"attribute 'quat' does not have enough data"),
+    ("<body name='b'><joint name='j' range='1 0' limited='true'/></body>", r"range\[0\] should be smaller"),
+    ("<geom type='plane' size='1 1 1'/><body name='b'><joint name='j'/><geom size='0.01'/></body>",
+     r"a plane, height field or SDF geom is not supported"),
 ], ids=["missing_mesh", "include", "unknown_class", "bad_quat", "bad_range", "plane"])
 def test_bad_elements_name_file_and_element(tmp_path, body, message):
     asset = "<asset><mesh name='gone' file='gone.stl'/></asset>" if "gone" in body else ""
     p = _write(tmp_path, f"<mujoco>{asset}<worldbody><body name='a'>{body}</body></worldbody></mujoco>")
-    with pytest.raises(TorchhandError, match=re.escape(str(p)) + ".*" + re.escape(message)):
+    with pytest.raises(TorchhandError, match=re.escape(str(p)) + ".*" + message) as err:
         load_mjcf(p)
+    assert "\n" not in str(err.value)
 
 
 def test_missing_mesh_is_a_missing_file_error(tmp_path):

@@ -4,7 +4,7 @@
 MuJoCo replays a result by setting ``qpos`` and keeps everything else the user's model has (tendons and joint
 couplings, actuators, contact exclusions, classes, options, the mesh files themselves):
 
-* its root body (the first body under ``<worldbody>``, as :func:`torchhand.hand.mjcf.load_mjcf` takes it) is moved
+* its root body (the first body under ``<worldbody>``, which must be the root :func:`~torchhand.hand.mjcf.load_mjcf` takes) is moved
   into a new body ``torchhand_root`` carrying a free joint ``root``, and its pose becomes the mounted root offset
   (:mod:`torchhand.hand.mount`: ``F⁻¹`` times its own): ``qpos = (wrist position (3), wrist quaternion wxyz (4),
   the model's joints)`` then gives the hand of the result, the wrist track being the pose of the hand frame;
@@ -15,8 +15,9 @@ couplings, actuators, contact exclusions, classes, options, the mesh files thems
   joint's 7 ``qpos`` and 6 ``qvel`` values (identity pose, at rest) in front.
 
 Joints the mount locks (the Shadow wrist) keep the user's range; the result's ``q`` holds them at their rest
-angle. A file with ``<include>`` elements cannot be carried this way: :func:`wrap_user_mjcf` returns None and the
-caller writes torchhand's own MJCF (:func:`torchhand.hand.mjcf.hand_to_mjcf`) instead.
+angle. A URDF file, a file with ``<include>`` elements, or one whose first body is not the hand's root (a scene with
+an object first) cannot be carried this way: :func:`wrap_user_mjcf` returns None and the caller writes torchhand's
+own MJCF (:func:`torchhand.hand.mjcf.hand_to_mjcf`, meshes inline) instead.
 """
 
 from __future__ import annotations
@@ -45,18 +46,19 @@ _ASSET_DIRS = {"mesh": "meshdir", "skin": "meshdir", "hfield": "meshdir", "textu
 def wrap_user_mjcf(src, hand: HandModel, out_xml) -> Path | None:
     """Write ``src`` (the user's MJCF hand) as ``out_xml`` with a free-joint wrapper at ``hand``'s mount (module
     docstring). ``hand``: the mounted model the synthesis used, loaded from ``src``. Returns the asset folder
-    written (or ``out_xml``'s folder when there were no assets), or None when the file has ``<include>`` elements
-    and nothing was written."""
+    written (or ``out_xml``'s folder when there were no assets), or None when the file cannot be carried (module
+    docstring) and nothing was written."""
     src, out_xml = Path(src), Path(out_xml)
     root = ET.parse(src).getroot()
-    if root.find(".//include") is not None:
+    if root.tag != "mujoco" or root.find(".//include") is not None:
         return None
     h = hand.to(device="cpu", dtype=torch.float64)
-    assets = out_xml.with_name(out_xml.stem + "_assets")
-    _copy_assets(root, src.parent, assets)
-
     worlds = root.findall("worldbody")
     world = next((w for w in worlds if w.find("body") is not None), None)
+    if world is None or world.find("body").get("name") != h.link_names[0]:
+        return None
+    assets = out_xml.with_name(out_xml.stem + "_assets")
+    _copy_assets(root, src.parent, assets)
     rb = world.find("body")
     first = list(world).index(rb)
     index_among_bodies = [e for e in world if e.tag == "body"].index(rb)

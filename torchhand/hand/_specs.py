@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GEOM_TYPES", "LinkSpec", "JointSpec", "GeomSpec", "FingerSpec", "InertialSpec", "HandSpec"]
+__all__ = ["GEOM_TYPES", "LinkSpec", "JointSpec", "GeomSpec", "FingerSpec", "InertialSpec", "CouplingSpec", "HandSpec"]
 
 GEOM_TYPES = ("capsule", "box", "sphere", "cylinder", "mesh")
 
@@ -79,12 +79,27 @@ class InertialSpec:
 
 
 @dataclass(frozen=True)
+class CouplingSpec:
+    """A coupling of the hand's joints in the source file, reported (the kinematics keep every joint free).
+
+    kind: "tendon" (a fixed tendon: length = sum coef_i q_i) or "equality" (a joint equality: q1 = poly(q2), coef
+    the polynomial's five coefficients); name; joints: the joint names it couples
+    """
+
+    kind: str
+    name: str
+    joints: tuple[str, ...]
+    coef: tuple[float, ...]
+
+
+@dataclass(frozen=True)
 class HandSpec:
     """A whole hand as plain specs: the arguments of :func:`torchhand.hand.model.build_hand_model`.
 
     name: model name; links: parents first, the root first; joints: in the order of the model's q; geoms: collision
     geometry; fingers: finger annotations; side: "right" | "left" | "none"; length: metres; q_rest: (D,) radians /
-    metres, or None (zero clamped into the limits); inertials: one per link at most (the others from their geoms)
+    metres, or None (zero clamped into the limits); inertials: one per link at most (the others from their geoms); couplings: the joint couplings the source file
+    declares (reported only)
     """
 
     name: str
@@ -96,3 +111,4 @@ class HandSpec:
     length: float = 0.0
     q_rest: np.ndarray | None = None
     inertials: tuple[InertialSpec, ...] = ()
+    couplings: tuple[CouplingSpec, ...] = ()

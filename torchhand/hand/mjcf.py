@@ -1,62 +1,37 @@
-"""MJCF import and export of hand models (MuJoCo's XML format), without MuJoCo at run time.
+"""Hand files: MJCF and URDF import through MuJoCo's compiler, MJCF export.
 
-Import: :func:`load_mjcf` (also ``HandModel.from_mjcf``)
-    Parses the file with :mod:`xml.etree` and builds a :class:`~torchhand.hand.model.HandModel` whose forward
-    kinematics equals MuJoCo's body poses (``data.xpos``, ``data.xmat``) for the same joint values.
+Import: :func:`load_mjcf` (also ``HandModel.from_file``, ``from_mjcf``, ``from_urdf``)
+    MuJoCo's own compiler reads the file (:mod:`torchhand.hand._compile`; MuJoCo is a dependency): every MJCF feature
+    MuJoCo reads (``<include>``, ``<default>`` classes, ``meshdir``/``assetdir``, ``<frame>``, orientations in any
+    form, ``fromto``, ``<replicate>``, ...) and URDF (compiled with ``fusestatic="false"``, ``discardvisual``,
+    ``balanceinertia`` and mesh paths relative to the file; see that module). What MuJoCo refuses is one line,
+    MuJoCo's message included (FileFormatError; exit 2 from the CLI). The :class:`~torchhand.hand.model.HandModel`
+    is built from the compiled model (:mod:`torchhand.hand._compiled_read`), so its forward kinematics equals
+    MuJoCo's body poses (``data.xpos``, ``data.xmat``) for the same joint values.
 
-    * ``<compiler>``: ``angle`` (MuJoCo's default is **degree**; it scales hinge/ball ranges and ``axisangle`` /
-      ``euler`` angles), ``meshdir`` / ``assetdir`` (relative to the XML file), ``eulerseq``, ``autolimits``.
-    * ``<default>`` classes with nesting, ``class=`` on elements and ``childclass`` on bodies and frames.
-    * Orientations in every MJCF form: ``quat`` (wxyz), ``axisangle``, ``euler`` (with ``eulerseq``), ``xyaxes``,
-      ``zaxis``; ``<frame>`` elements compose into their children.
-    * Links: every ``<body>`` below the root, depth first (MuJoCo's body order); bodies without joints are links
-      with fixed offsets. Joints, in MuJoCo's qpos order: ``hinge`` and ``slide`` map one to one (``pos`` = anchor);
-      ``ball`` becomes three hinges ``<name>_x``, ``<name>_y``, ``<name>_z`` about the body axes (limits +/- the
-      ball's range); a ``free`` joint is skipped on the root body and refused elsewhere. Limits: ``range`` where the
-      joint is limited (``limited="true"``, or ``auto`` with a range); unlimited joints get +/- pi (hinge) or
-      +/- 1 m (slide). A non-zero ``ref`` is refused (the kernels have no joint offset).
-    * The root: the first body under ``<worldbody>`` (or ``root_body``). Link 0's parent frame is the FK's ``root``
-      input, so the root body's own ``pos``/orientation (and its ancestors) are not part of the model: the caller
-      passes the root body's world pose (MuJoCo's ``data.xpos/xmat`` of that body, before any of its own joints)
-      as ``root``. A body named ``torchhand_root`` with a free joint (written by :func:`hand_to_mjcf` when the root
-      link has joints of its own) is looked through.
-    * Geometry: collision geoms only. A geom with ``contype="0"`` and ``conaffinity="0"`` is visual and skipped
-      (meshes used only by visual geoms are not read, though their files must exist, as for MuJoCo). Capsule,
-      cylinder, box, sphere (``fromto`` included) keep MJCF's size semantics; ellipsoids become meshes (a scaled
-      icosphere); plane, hfield and sdf geoms and primitives fitted to meshes are refused. Mesh assets are read
-      with trimesh from ``meshdir`` (or given inline by ``vertex``/``face``; a vertex list alone means its convex
-      hull), scaled by ``scale``, exact duplicate vertices merged.
-    * Mesh frames: MuJoCo moves a mesh's vertices into the mesh's inertial frame and moves the geom frame by the
-      inverse (``model.mesh_pos``, ``model.mesh_quat``). Here the vertices stay in the mesh file's frame and the
-      geom pose is the one written in the XML, so the geometry in the body frame is identical to MuJoCo's:
-      ``GeomSpec.pose @ T(mesh_pos, mesh_quat) == T(model.geom_pos, model.geom_quat)``.
-    * ``<include>``, ``<replicate>``, ``<attach>``, ``<composite>`` and ``<flexcomp>`` are refused with a clear
-      error; tendons, equalities, actuators, sites, cameras and lights are ignored.
-    * Inertials: each body's ``<inertial>`` (``pos``, orientation, ``mass``, ``diaginertia`` or ``fullinertia``)
-      becomes the link's ``link_mass``, ``link_com``, ``link_inertia``; without one, and with
-      ``<compiler inertiafromgeom>`` true or auto, they come from the body's geoms as MuJoCo computes them
-      (``inertiagrouprange``, ``boundmass``, ``boundinertia``, ``balanceinertia``, ``settotalmass`` honoured;
-      shell inertia refused). Equal to MuJoCo's ``body_mass``, ``body_ipos``, ``body_inertia`` (tests/torchhand/
-      test_dynamics.py).
+    * The root: ``root_body``, else the top-level body with the most joints below it (so a scene file with a floor
+      and an object loads its hand). Link 0's parent frame is the FK's ``root`` input, so the root body's own pose
+      is not part of the model: the caller passes its world pose (MuJoCo's ``xpos/xmat`` of that body before its
+      own joints) as ``root``. A top body ``torchhand_root`` with a free joint (torchhand's wrapper) is looked
+      through.
+    * Links: every body below the root, in MuJoCo's body order; bodies without joints are links with fixed offsets.
+      Joints, in MuJoCo's qpos order: ``hinge`` and ``slide`` one to one (slide values and limits in metres);
+      ``ball`` becomes three hinges ``<name>_x``, ``_y``, ``_z`` about the body axes (limits +/- the ball's range);
+      a ``free`` joint is skipped on the root body and refused elsewhere. Limits where the joint is limited;
+      unlimited joints get +/- pi (hinge) or +/- 1 m (slide). A non-zero ``ref`` is refused.
+    * Geometry: collision geoms (``contype`` or ``conaffinity`` non-zero) as MuJoCo compiled them: primitives with
+      MJCF's size semantics, meshes with MuJoCo's vertices (re-centred in the mesh's inertial frame, the geom pose
+      moved by the inverse: the world geometry is the file's); ellipsoids become scaled icospheres; planes, height
+      fields and SDF geoms are refused.
+    * Inertials: MuJoCo's (``body_mass``, ``body_ipos``, ``body_iquat``, ``body_inertia``), whatever the file's way
+      of giving them (explicit, from geoms, ``settotalmass``, ``balanceinertia``).
+    * Couplings: fixed tendons over the hand's joints and joint equality constraints are reported
+      (``HandModel.couplings``, ``torchhand hand show``); the kinematics keep every joint free.
 
-    Fingers (heuristic; a file written by :func:`hand_to_mjcf` stores its annotations in ``<custom>`` and those win):
-    every leaf body whose chain below the nearest branching body (a body with two or more child bodies, e.g. the
-    palm) carries at least two hinge joints is a finger. Its links are the bodies of that chain that have joints,
-    plus the leaf when it has none, last four kept; the distal link is the leaf. All directions are taken at q = 0
-    in the distal link's frame:
-
-    * finger direction ``d``: from the nearest ancestor origin that differs from the distal link's origin to it;
-    * flexion joints: the (up to three most distal) hinges of the chain whose axis is parallel (within 25 degrees)
-      to the last hinge's axis, proximal first;
-    * tip: the point of the distal link's collision geometry farthest along ``d`` (its support point);
-    * nail normal: ``d x a`` with ``a`` the last flexion axis, signed so that it points away from the side the
-      finger flexes to (positive angles flex when the joint range lies mostly above zero), orthogonal to ``d``;
-    * name: the common prefix of the finger's link names without a side prefix (``rh_ff...`` -> ``ff``), else the
-      leaf's name;
-    * ``length``: the largest distance at q = 0 from a finger's branching body to its tip.
-
-    ``side``: the ``side`` argument, else "right"/"left" in the file name, the model name, or the body-name prefixes
-    ``rh_``/``lh_``; else "none".
+    Fingers, thumb, palm and side by topology (:mod:`torchhand.hand._topology`; names are never required): the
+    palm is the first body where three or more jointed chains branch, each chain is a finger, the thumb is the
+    finger whose flexion axis opposes the others', the side follows from the thumb's position. A file written by
+    :func:`hand_to_mjcf` stores its annotations in ``<custom>`` and those win.
 
 Export: :func:`hand_to_mjcf` (also ``HandModel.to_mjcf``) and :func:`save_mjcf`
     A self-contained MJCF string for any hand: bodies named ``link_names``, hinge/slide joints named ``joint_names``
@@ -73,8 +48,8 @@ Export: :func:`hand_to_mjcf` (also ``HandModel.to_mjcf``) and :func:`save_mjcf`
     (meshes MuJoCo cannot compile, i.e. flat or with fewer than 4 vertices, are refused). Side, length, q_rest and the
     finger annotations go into ``<custom>`` so that :func:`load_mjcf` restores them.
 
-Modules: the reader (:mod:`~torchhand.hand._mjcf_read`, over :mod:`~torchhand.hand._mjcf_parse`,
-:mod:`~torchhand.hand._mjcf_bodies` and :mod:`~torchhand.hand._mjcf_fingers`) turns a file into a plain
+Modules: the reader (:mod:`~torchhand.hand._read`, over :mod:`~torchhand.hand._compile`,
+:mod:`~torchhand.hand._compiled_read` and :mod:`~torchhand.hand._topology`) turns a file into a plain
 :class:`~torchhand.hand._specs.HandSpec`, from which :func:`~torchhand.hand.model.build_from_spec` builds the model;
 the writer (:mod:`~torchhand.hand._mjcf_write`) reads a built model. Neither imports :mod:`torchhand.hand.model`.
 
@@ -83,7 +58,7 @@ Conventions: metres, radians, quaternions wxyz, column-vector 4x4 transforms (se
 
 from __future__ import annotations
 
-from ._mjcf_read import read_mjcf
+from ._read import read_hand_file
 from ._mjcf_write import hand_to_mjcf, save_mjcf
 from .model import HandModel, build_from_spec
 
@@ -91,17 +66,17 @@ __all__ = ["load_mjcf", "hand_to_mjcf", "save_mjcf"]
 
 
 def load_mjcf(path, *, root_body: str | None = None, side: str | None = None, name: str | None = None) -> HandModel:
-    """Load a hand from an MJCF file (see this module's docstring for what is supported and the heuristics).
+    """Load a hand from an MJCF or URDF file (see this module's docstring for what is read and the rules).
 
-    path:      the .xml file; mesh files are found through ``<compiler meshdir/assetdir>`` relative to it
-    root_body: name of the body that becomes link 0 (default: the first body under ``<worldbody>``); its world pose
-               (before its own joints) is the FK's ``root`` input
-    side:      "right" | "left" | "none"; default: from the file name, model name or body-name prefixes
+    path:      the .xml or .urdf file (MuJoCo resolves includes and mesh files)
+    root_body: name of the body that becomes link 0 (default: the top-level body with the most joints below it);
+               its world pose (before its own joints) is the FK's ``root`` input
+    side:      "right" | "left" | "none"; default: the stored annotation, else the thumb's side
     name:      model name; default: ``<mujoco model=...>`` or the file name
     returns: HandModel (float64, CPU); joints in MuJoCo's qpos order (free joint excluded); the model that
-             :func:`~torchhand.hand.model.build_hand_model` builds from :func:`~torchhand.hand._mjcf_read.read_mjcf`'s
-             spec, as ``HandModel.from_mjcf``
-    raises: MissingFileError (file or mesh file missing), FileFormatError (malformed XML, unsupported or invalid
-            element, naming the file and the element), UnknownNameError (``root_body`` not found)
+             :func:`~torchhand.hand.model.build_hand_model` builds from
+             :func:`~torchhand.hand._read.read_hand_file`'s spec, as ``HandModel.from_file``
+    raises: MissingFileError (file missing), FileFormatError (what MuJoCo refuses, or an unsupported element, on
+            one line), UnknownNameError (``root_body`` not found)
     """
-    return build_from_spec(read_mjcf(path, root_body=root_body, side=side, name=name))
+    return build_from_spec(read_hand_file(path, root_body=root_body, side=side, name=name))

@@ -26,9 +26,9 @@ from . import dynamics as _dyn
 from ._build import as_tensor
 from ._link_geometry import fit_capsules as _fit_capsules
 from ._link_geometry import surface_samples as _surface_samples
-from ._mjcf_read import read_mjcf
+from ._read import read_hand_file
 from ._mjcf_write import hand_to_mjcf
-from ._specs import GEOM_TYPES, FingerSpec, GeomSpec, HandSpec, InertialSpec, JointSpec, LinkSpec
+from ._specs import GEOM_TYPES, CouplingSpec, FingerSpec, GeomSpec, HandSpec, InertialSpec, JointSpec, LinkSpec
 from .._tree import tree_to
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputValueError, ShapeError, UnknownNameError
@@ -40,6 +40,7 @@ __all__ = [
     "GeomSpec",
     "FingerSpec",
     "InertialSpec",
+    "CouplingSpec",
     "HandSpec",
     "LinkGeoms",
     "HandModel",
@@ -95,6 +96,8 @@ class HandModel:
     link_inertia: inertia of each link about its centre of mass in link-frame axes, (L, 3, 3), kg m^2
         (the three inertial fields default to zero: a model constructed without them is massless; see
         :func:`build_hand_model` and :mod:`torchhand.hand.dynamics`)
+    couplings: the joint couplings the source file declares (:class:`CouplingSpec`: fixed tendons, joint
+        equalities), reported only: every joint moves freely within its limits
     """
 
     name: str
@@ -124,6 +127,7 @@ class HandModel:
     link_mass: torch.Tensor | None = None
     link_com: torch.Tensor | None = None
     link_inertia: torch.Tensor | None = None
+    couplings: tuple = ()
 
     def __post_init__(self):
         L = len(self.link_names)
@@ -285,11 +289,22 @@ class HandModel:
         lo, hi = self.joint_limits[:, 0], self.joint_limits[:, 1]
         return lo + u.to(self.device) * (hi - lo)
 
-    # --- MJCF -------------------------------------------------------------------------------------------------
+    # --- files ------------------------------------------------------------------------------------------------
+    @classmethod
+    def from_file(cls, path, **kwargs) -> "HandModel":
+        """Load a hand from an MJCF or URDF file, compiled by MuJoCo (see :func:`torchhand.hand.mjcf.load_mjcf`;
+        ``kwargs``: ``root_body``, ``side``, ``name``)."""
+        return build_from_spec(read_hand_file(path, **kwargs))
+
     @classmethod
     def from_mjcf(cls, path, **kwargs) -> "HandModel":
-        """Load a hand described in MJCF (see :func:`torchhand.hand.mjcf.load_mjcf`)."""
-        return build_from_spec(read_mjcf(path, **kwargs))
+        """Load a hand described in MJCF (:meth:`from_file`)."""
+        return cls.from_file(path, **kwargs)
+
+    @classmethod
+    def from_urdf(cls, path, **kwargs) -> "HandModel":
+        """Load a hand described in URDF (:meth:`from_file`)."""
+        return cls.from_file(path, **kwargs)
 
     def to_mjcf(self) -> str:
         """The model as an MJCF string that MuJoCo loads; the root body carries a free joint (see
@@ -311,6 +326,7 @@ def build_hand_model(
     length: float = 0.0,
     q_rest: np.ndarray | None = None,
     inertials: list[InertialSpec] = (),
+    couplings: tuple = (),
     density: float = _dyn.DEFAULT_DENSITY,
     samples_per_area: float = 60000.0,
     min_samples_per_link: int = 24,
@@ -370,13 +386,15 @@ def build_hand_model(
         link_mass=t(mass),
         link_com=t(com),
         link_inertia=t(inertia),
+        couplings=tuple(couplings),
     )
 
 
 def build_from_spec(spec: HandSpec, **kwargs) -> HandModel:
     """:func:`build_hand_model` of a :class:`HandSpec` (``kwargs``: its density, sampling and dtype options)."""
     return build_hand_model(spec.name, spec.links, spec.joints, spec.geoms, spec.fingers, side=spec.side,
-                            length=spec.length, q_rest=spec.q_rest, inertials=spec.inertials, **kwargs)
+                            length=spec.length, q_rest=spec.q_rest, inertials=spec.inertials,
+                            couplings=spec.couplings, **kwargs)
 
 
 def _link_geoms(geoms: list[GeomSpec], lidx: dict, dtype: torch.dtype) -> LinkGeoms:

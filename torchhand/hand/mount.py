@@ -217,9 +217,11 @@ def track_hand(track):
 def _mounted_mjcf(path: str, side: str, stamp) -> "object":
     from .mjcf import load_mjcf
 
-    model = load_mjcf(path, side=side)
+    model = load_mjcf(path)
     if model.side not in (side, "none"):
-        raise InputValueError(f"hands: {path} is a {model.side} hand, the scene's track is the {side} hand")
+        raise InputValueError(f"hands: {path} is a {model.side} hand (its thumb's side), the scene's track is the "
+                              f"{side} hand")
+    model = dataclasses.replace(model, side=side)
     doc = load_sidecar(path)
     mount = doc.get("mount", {})
     default = np.eye(4) if {"origin", "x_axis", "y_axis"} <= set(mount) else hand_frame(model)

@@ -122,9 +122,10 @@ def write_manipulation(result: ManipulationResult, out=None, *, overwrite: bool 
     scene = result.scene
     motions = result.hands or (HandMotion(result.grasp.side, result.hand, result.grasp, result.q, result.root,
                                           result.torque, result.torque_rest),)
-    # the written scene holds the manipulated hands, in the scene's order, with their synthesized wrists
+    # the written scene holds the manipulated hands, in the scene's order, with their synthesized wrists and the
+    # grasps' hand models (a grasp may bring another hand file than the scene's, e.g. one on an arm)
     by_side = {h.side: h for h in scene.hands}
-    tracks = [dataclasses.replace(by_side.get(m.side, scene.hands[0]), side=m.side,
+    tracks = [dataclasses.replace(by_side.get(m.side, scene.hands[0]), side=m.side, model=m.grasp.hand,
                                   wrist_pose=torch.as_tensor(m.root)) for m in motions]
     scene = dataclasses.replace(scene, hands=tuple(tracks))
     writer.begin(result, scene, [m.hand for m in motions])

@@ -6,11 +6,11 @@ Both return an unsnapped :class:`~torchhand.manipulation.grasp.Grasp` (no contac
 * :func:`grasp_from_result`: solution ``N`` of a result directory (docs/result_format.md) at frame ``F``: its ``q``,
   its ``root_pose`` and its ``object_pose`` give ``wrist_in_object = object_pose[F]^-1 @ root_pose[F]``; the hand is
   the scene track's (``"default"`` at the track's length, or its MJCF file).
-* :func:`grasp_from_qpos`: an MJCF hand and a qpos vector of that model (MuJoCo's layout): the model is loaded
-  with MuJoCo, ``mj_kinematics`` places its bodies; the hand is mounted on its hand frame as a scene mounts it
+* :func:`grasp_from_qpos`: a hand file (MJCF or URDF) and a qpos vector of that model (MuJoCo's layout): the
+  model is compiled by MuJoCo, ``mj_kinematics`` places its bodies; the hand is mounted on its hand frame as a scene mounts it
   (:func:`torchhand.hand.mount.track_hand`); joints are mapped by name; the wrist pose is read off the palm (the
   body the fingers branch from), so a free joint in the qpos, the root body's fixed pose, and palm joints the mount
-  locks (the Shadow wrist) all end up in the wrist pose; the object pose is the scene's at frame ``F``.
+  locks (the Shadow wrist, an arm's joints above the palm) all end up in the wrist pose; the object pose is the scene's at frame ``F``.
 """
 
 from __future__ import annotations
@@ -76,25 +76,24 @@ def read_qpos(path) -> np.ndarray:
 
 
 def grasp_from_qpos(mjcf, qpos, scene, *, frame: int = 0, side: str | None = None) -> Grasp:
-    """The grasp of an MJCF hand at a qpos vector, on ``scene``'s object at ``frame`` (module docstring).
+    """The grasp of a hand file's model at a qpos vector, on ``scene``'s object at ``frame`` (module docstring).
 
     Args:
-        mjcf: the hand's MJCF file (the same file the qpos belongs to)
+        mjcf: the hand's MJCF or URDF file (the same file the qpos belongs to)
         qpos: the model's qpos vector, (nq,)
         scene: a :class:`~torchhand.scene.Scene` (its object pose at ``frame``)
         side: the hand's side (default: the scene's first hand)
     """
     import mujoco
 
+    from ..hand._compile import compile_file
+
     path = Path(mjcf)
     if not path.is_file():
-        raise MissingFileError(f"MJCF hand {path} does not exist")
+        raise MissingFileError(f"hand file {path} does not exist")
     side = side or scene.hands[0].side
     f = _frame(frame, scene.T, f"scene {scene.name}")
-    try:
-        model = mujoco.MjModel.from_xml_path(str(path))
-    except ValueError as err:
-        raise FileFormatError(f"{path}: MuJoCo cannot load it ({err})") from None
+    model = compile_file(path)
     qpos = np.asarray(qpos, dtype=np.float64)
     if qpos.shape != (model.nq,):
         raise ShapeError(f"--qpos: expected {model.nq} values (the qpos of {path.name}), got shape {qpos.shape}")
