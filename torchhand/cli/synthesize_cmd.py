@@ -44,8 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--strategy", default="mixed", choices=["static", "sliding", "relocating", "mixed"],
                    help="manipulation-strategy preference (default mixed)")
     p.add_argument("--frames", metavar="A:B", help="synthesize frames A <= t < B of the scene only")
-    p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH.xml",
-                   help="use this MJCF hand for SIDE instead of the scene's (right=..., left=...; docs/hand_model.md)")
+    p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH",
+                   help="use this MJCF (.xml) or URDF (.urdf) hand for SIDE instead of the scene's (right=..., "
+                        "left=...; docs/hand_model.md)")
     p.add_argument("--slide-speed", type=float, default=0.02, metavar="M_PER_S",
                    help="a contact held over two frames whose hand point moves faster than this on the object "
                         "slides (force on its friction cone's boundary); motion capture, whose wrist drifts by "
@@ -59,6 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also write paths whose reconstruction fails, as searched (flagged: reconstructed = false)")
     p.add_argument("--trees", type=int, default=16, help="search trees grown in parallel (default 16)")
     p.add_argument("--candidates", type=int, default=16, help="candidates tested per expansion (default 16)")
+    p.add_argument("--no-mount-fit", action="store_true",
+                   help="mount a robot hand by its hand-frame rule only, without the reach fit (docs/hand_model.md)")
     p.add_argument("--no-reconstruct", action="store_true",
                    help="write the searched poses without smoothing (flagged unsmoothed)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="device (default cpu)")
@@ -81,7 +84,7 @@ def with_hands(scene, items: list[str]):
     for item in items:
         side, sep, path = item.partition("=")
         if not sep or side not in ("right", "left") or not path:
-            raise InputValueError(f"--hand {item}: expected SIDE=PATH.xml with SIDE right or left")
+            raise InputValueError(f"--hand {item}: expected SIDE=PATH with SIDE right or left")
         if side not in scene.sides:
             raise InputValueError(f"--hand {item}: scene '{scene.name}' has no {side} hand (hands: "
                                   f"{', '.join(scene.sides)})")
@@ -152,7 +155,7 @@ def run(args) -> int:
 
     def on_solution(result, index):
         if not started:
-            writer.start(result.problem, scene)
+            writer.start(result.problem, result.scene)
             started.append(True)
         writer.add(result, index)
 
@@ -162,7 +165,8 @@ def run(args) -> int:
                             dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
                             reconstruct=not args.no_reconstruct, max_joint_speed=args.max_joint_speed,
                             keep_unsmoothed=args.keep_unsmoothed, progress=progress, on_solution=on_solution,
-                            node_settings=NodeTestSettings(slide_speed=args.slide_speed))
+                            node_settings=NodeTestSettings(slide_speed=args.slide_speed),
+                            mount_fit=not args.no_mount_fit)
     except KeyboardInterrupt:
         bar.close()
         where = writer.interrupted(None, scene.name)
@@ -171,8 +175,10 @@ def run(args) -> int:
         return 130
     bar.close()
     if not started:
-        writer.start(result.problem, scene)
+        writer.start(result.problem, result.scene)
     out = writer.finish(result, threads=threads)
+    for fit in result.mount_fits:
+        print(fit.describe())
     st = result.stats
     n = len(result.finals)
     ex = result.excluded

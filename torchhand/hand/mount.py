@@ -63,7 +63,7 @@ PALM_DEPTH = 0.015
 built-in scenes place the palm surface a few millimetres off the object with it)."""
 
 __all__ = ["PALM_DEPTH", "hand_frame", "mounted", "load_sidecar", "sidecar_path", "sidecar_frame", "thumb_index",
-           "track_hand", "relaxed_rest", "with_rest"]
+           "track_hand", "relaxed_rest", "with_rest", "mount_transform", "moved_on_track"]
 
 
 def thumb_index(model) -> int | None:
@@ -194,23 +194,49 @@ def mounted(model, F: np.ndarray):
 def track_hand(track):
     """The hand model of a scene's hand track (:class:`torchhand.scene.HandTrack`), float64 on the CPU.
 
-    ``track.model == "default"``: ``default_hand(track.side, track.length)``. Otherwise the MJCF file at
-    ``track.model``, loaded as a ``track.side`` hand and mounted on its hand frame (module docstring; the sidecar
-    file wins where it says something). Loaded files are cached per (path, side, modification time).
+    ``track.model == "default"``: ``default_hand(track.side, track.length)``. Otherwise the hand file (MJCF or
+    URDF) at ``track.model``, loaded as a ``track.side`` hand and mounted on its hand frame (module docstring; the
+    sidecar file wins where it says something). Then moved by ``track.mount`` when it has one
+    (:func:`moved_on_track`). Loaded files are cached per (path, side, modification time).
 
     Raises:
         MissingFileError: the MJCF file does not exist; InputValueError: a hand of the other side, or no hand frame.
     """
+    mount = getattr(track, "mount", None)
     if track.model == "default":
         from .default import default_hand
 
-        return default_hand(track.side, track.length)
+        return moved_on_track(default_hand(track.side, track.length), mount)
     path = Path(track.model)
     if not path.is_file():
-        raise MissingFileError(f"hands: MJCF hand '{path}' does not exist")
+        raise MissingFileError(f"hands: hand file '{path}' does not exist")
     side_car = sidecar_path(path)
     stamp = (path.stat().st_mtime_ns, side_car.stat().st_mtime_ns if side_car.is_file() else 0)
-    return _mounted_mjcf(str(path.resolve()), track.side, stamp)
+    return moved_on_track(_mounted_mjcf(str(path.resolve()), track.side, stamp), mount)
+
+
+def mount_transform(mount) -> np.ndarray:
+    """``M`` (4, 4) of a track's ``mount`` (shift metres, rotation vector degrees; hand frame): the model's hand
+    frame sits at ``wrist_pose @ M``. The identity for None."""
+    M = np.eye(4)
+    if mount is None:
+        return M
+    from scipy.spatial.transform import Rotation
+
+    M[:3, :3] = Rotation.from_rotvec(np.radians(np.asarray(mount[3:], dtype=np.float64))).as_matrix()
+    M[:3, 3] = np.asarray(mount[:3], dtype=np.float64)
+    return M
+
+
+def moved_on_track(model, mount):
+    """``model`` (mounted on its hand frame) moved by a track's ``mount`` (:func:`mount_transform`): the root
+    link's offset pre-multiplied by ``M``. ``model`` itself for None."""
+    if mount is None or not any(mount):
+        return model
+    ch = model.chain
+    off = ch.link_offset.clone()
+    off[0] = torch.as_tensor(mount_transform(mount), dtype=off.dtype, device=off.device) @ off[0]
+    return dataclasses.replace(model, chain=ch._replace(link_offset=off))
 
 
 @functools.lru_cache(maxsize=16)

@@ -60,14 +60,18 @@ class HandTrack:
         wrist_pose: hand (wrist) frame poses ``T_world_hand``, (T, 4, 4), world, metres, float64
         length: hand length, wrist joint centre to middle fingertip, float, metres (default 0.19); scales the
             built-in hand, informational for an MJCF hand
-        model: "default" (the built-in human hand scaled by ``length``) or the path of an MJCF hand (absolute once
-            loaded from a scene directory; :func:`torchhand.hand.mount.track_hand` builds the model)
+        model: "default" (the built-in human hand scaled by ``length``) or the path of an MJCF or URDF hand
+            (absolute once loaded from a scene directory; :func:`torchhand.hand.mount.track_hand` builds the model)
+        mount: None, or 6 floats: the hand model moved on the track by a shift (metres, x y z in the hand frame)
+            and a rotation vector (degrees, hand frame), on top of its hand frame; the synthesis' mount fit sets
+            it for a robot hand (docs/hand_model.md, "Mounting without tuning")
     """
 
     side: str
     wrist_pose: torch.Tensor
     length: float = 0.19
     model: str = "default"
+    mount: tuple | None = None
 
     def __post_init__(self):
         if self.side not in SIDES:
@@ -76,6 +80,13 @@ class HandTrack:
         object.__setattr__(self, "length", _check_number(self.length, "HandTrack.length", low=0.0, strict=True))
         if not isinstance(self.model, str) or not self.model:
             raise InputValueError(f"HandTrack.model: expected 'default' or an MJCF path, got {self.model!r}")
+        if self.mount is not None:
+            m = tuple(self.mount) if isinstance(self.mount, (tuple, list)) else ()
+            if len(m) != 6 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                      for v in m):
+                raise InputValueError(f"HandTrack.mount ({self.side}): expected 6 finite numbers (shift metres, "
+                                      f"rotation vector degrees), got {self.mount!r}")
+            object.__setattr__(self, "mount", tuple(float(v) for v in m))
 
     @property
     def T(self) -> int:

@@ -30,7 +30,7 @@ _SCHEMA = {
     "scene": {"name", "description", "fps", "friction", "gravity", "trajectories", "external_wrench"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
     "environment": {"table", "table_height", "friction"},
-    "hands": {"side", "length", "model"},
+    "hands": {"side", "length", "model", "mount"},
     "source": {"kind", "fps", "frames", "first_frame", "units_scale", "up_axis", "handedness", "wrists"},
     "source.wrists": {"side", "file", "joint", "rotation"},
 }
@@ -154,18 +154,24 @@ def load_scene_dir(directory: Path) -> Scene:
         if model != "default":
             mpath = (directory / model).resolve()
             if not mpath.is_file():
-                raise MissingFileError(f"{toml_path}: hands[{i}].model '{mpath}' does not exist (an MJCF hand file, "
+                raise MissingFileError(f"{toml_path}: hands[{i}].model '{mpath}' does not exist (an MJCF or URDF "
+                                       "hand file, "
                                        "relative to the scene directory, or \"default\")")
             model = str(mpath)
-        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model))
-    if len({s for s, _, _ in hand_specs}) != len(hand_specs):
-        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[s for s, _, _ in hand_specs]}")
+        mount = hd.get("mount")
+        if mount is not None and not (isinstance(mount, list) and len(mount) == 6 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in mount)):
+            raise FileFormatError(f"{toml_path}: field hands[{i}].mount: expected 6 finite numbers (shift metres, "
+                                  f"rotation vector degrees), got {mount!r}")
+        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model, mount))
+    if len({h[0] for h in hand_specs}) != len(hand_specs):
+        raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[h[0] for h in hand_specs]}")
 
     mesh_path = directory / mesh_name
     if not mesh_path.is_file():
         raise MissingFileError(f"{toml_path}: object.mesh '{mesh_path}' does not exist")
     traj_path = directory / traj_name
-    arrays, external = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{s}" for s, _, _ in hand_specs],
+    arrays, external = _read_trajectories(traj_path, ["object_pose"] + [f"wrist_pose_{h[0]}" for h in hand_specs],
                                           external_flag)
     T = arrays["object_pose"].shape[0]
     if external is not None and external.shape[0] != T:
@@ -176,8 +182,9 @@ def load_scene_dir(directory: Path) -> Scene:
         check_transforms(a, f"{traj_path}: {key}")
 
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
-    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model)
-                  for s, length, model in hand_specs)
+    hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model,
+                            mount=None if mount is None else tuple(mount))
+                  for s, length, model, mount in hand_specs)
     try:
         source = _read_source(r, doc) if "source" in doc else None
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,

@@ -97,6 +97,8 @@ def _write_files(scene: Scene, out: Path) -> None:
         entry = {"side": h.side, "length": float(h.length)}
         if h.model != "default":
             entry["model"] = _write_hand(h, out)
+        if h.mount is not None:
+            entry["mount"] = [float(v) for v in h.mount]
         text += "\n[[hands]]\n" + tomli_w.dumps(entry)
     (out / _SCENE_TOML).write_text(text, encoding="utf-8")
 

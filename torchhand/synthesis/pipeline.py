@@ -36,6 +36,7 @@ from ..errors import InputValueError
 from ..scene import Scene, load_scene
 from . import DEFAULT_MAX_NODES
 from .initial import prune_patches
+from .mount_fit import fit_mounts
 from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
 from .problem import SynthesisProblem, build_problem
 from .reconstruct import ContactTrack, reconstruct_motion
@@ -106,6 +107,7 @@ class SynthesisResult:
     max_joint_speed: float = 8.0
     keep_unsmoothed: bool = False
     complete: bool = True
+    mount_fits: tuple = ()
 
     @property
     def solutions(self) -> tuple:
@@ -231,7 +233,7 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
                max_joint_speed: float = 8.0, keep_unsmoothed: bool = False,
                min_difference: float = math.radians(2.0),
                node_settings: NodeTestSettings = NodeTestSettings(), progress=None,
-               on_solution=None) -> SynthesisResult:
+               on_solution=None, mount_fit: bool = True) -> SynthesisResult:
     """Find up to ``solutions`` finger motions for ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene
     name or a scene directory).
 
@@ -247,6 +249,10 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
     progress: optional callable(stage: str, info: dict) called at each stage and after every search round (info
     has elapsed, and in the search nodes_tested, max_nodes, solutions, dead_ends). on_solution: optional
     callable(result, index) called with the (growing) result as each solution is accepted (checkpointing).
+
+    mount_fit: a robot hand (a track with a hand file, no ``mount`` and no sidecar ``[mount]``) is first mounted by
+    :func:`~torchhand.synthesis.mount_fit.fit_mount`; ``result.scene`` carries the fitted ``mount`` and
+    ``result.mount_fits`` the fits. False: the hand-frame rule's mount as it is.
     """
     for name, value in (("solutions", solutions), ("trees", trees), ("candidates", candidates)):
         if not isinstance(value, int) or value < 1:
@@ -265,6 +271,10 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
         if progress is not None:
             progress(stage, dict(info, elapsed=time.perf_counter() - t_start))
 
+    fits = ()
+    if mount_fit and any(t.model != "default" and t.mount is None for t in scene.hands):
+        report("mount")
+        scene, fits = fit_mounts(scene)
     report("prepare")
     problem = build_problem(scene, gen, device=device, dtype=dtype)
     report("prune")
@@ -275,7 +285,8 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
                               time_budget=None if time_budget is None else max(0.0, time_budget - t_prep))
     result = SynthesisResult(problem=problem, scene=scene, finals=[], stats=SearchStats(), settings=settings,
                              node_settings=node_settings, seed=int(seed), max_joint_speed=float(max_joint_speed),
-                             keep_unsmoothed=bool(keep_unsmoothed or not reconstruct), complete=False)
+                             keep_unsmoothed=bool(keep_unsmoothed or not reconstruct), complete=False,
+                             mount_fits=fits)
     excluded = {"failed_check": 0, "unsmoothed": 0, "duplicate": 0}
     t_final = [0.0]
 
