@@ -113,7 +113,7 @@ def test_scene_carries_its_mjcf_hand(tmp_path):
         torchhand.load_scene(out)
 
 
-@pytest.mark.parametrize("item,message", [("middle=x.xml", "SIDE=PATH.xml"), ("left=x.xml", "no left hand"),
+@pytest.mark.parametrize("item,message", [("middle=x.xml", "SIDE=PATH with SIDE"), ("left=x.xml", "no left hand"),
                                           ("right=/no/such/hand.xml", "does not exist")])
 def test_synthesize_hand_option_refuses_bad_input(tmp_path, capsys, item, message):
     out = tmp_path / "out"

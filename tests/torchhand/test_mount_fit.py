@@ -26,13 +26,14 @@ def _displaced(scene, shift):
 
 
 def test_fit_finds_back_a_displaced_track():
-    """box-turn's track pulled 15 mm away from the box's side and 10 mm up: the fit moves the hand back by about
-    that much (one 5 mm grid step), and reaches more of the box than the displaced hand."""
-    scene = _displaced(torchhand.load_scene("box-turn"), (0.0, 0.015, 0.010))
+    """box-turn's track pulled 15 mm away from the box's side and 10 mm up, so that the thumb no longer reaches it
+    on every frame: the fit moves the hand back toward where it was, far enough to reach on (nearly) every frame."""
+    d = np.array((0.0, 0.015, 0.010))
+    scene = _displaced(torchhand.load_scene("box-turn"), tuple(d))
     fit = fit_mount(scene, "right")
     shift = np.array(fit.mount[:3])
-    assert shift[1] < -0.005 and shift[2] < 0.0, fit.describe()
-    assert fit.score > fit.score_unmoved
+    assert fit.score_unmoved < 0.9 and fit.score > 0.95, fit.describe()
+    assert float(shift @ -d) > 0 and np.linalg.norm(shift) <= np.linalg.norm(d) + 0.005, fit.describe()
     again = fit_mount(scene, "right")
     assert again.mount == fit.mount and again.score == fit.score          # deterministic
 

@@ -98,7 +98,7 @@ def _hand(entry: str, base: Path, where: str) -> tuple[str, str]:
     if sep and side in _SIDES:
         path_text = rest
     elif sep and "/" not in side:
-        raise InputValueError(f"{where}: hands: '{entry}': expected \"default\", SIDE=PATH.xml with SIDE right or "
+        raise InputValueError(f"{where}: hands: '{entry}': expected \"default\", SIDE=PATH (.xml or .urdf) with SIDE right or "
                               f"left, or a path")
     else:
         side, path_text = "right", entry

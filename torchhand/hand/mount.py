@@ -207,12 +207,27 @@ def track_hand(track):
         from .default import default_hand
 
         return moved_on_track(default_hand(track.side, track.length), mount)
+    rest = getattr(track, "rest", None)
     path = Path(track.model)
     if not path.is_file():
         raise MissingFileError(f"hands: hand file '{path}' does not exist")
     side_car = sidecar_path(path)
     stamp = (path.stat().st_mtime_ns, side_car.stat().st_mtime_ns if side_car.is_file() else 0)
-    return moved_on_track(_mounted_mjcf(str(path.resolve()), track.side, stamp), mount)
+    model = _mounted_mjcf(str(path.resolve()), track.side, stamp)
+    if rest is not None:
+        model = _with_rest_cached(str(path.resolve()), track.side, stamp, rest)
+    return moved_on_track(model, mount)
+
+
+@functools.lru_cache(maxsize=16)
+def _with_rest_cached(path: str, side: str, stamp, rest: str):
+    """The mounted model with the rest pose ``rest`` ("zero" or "relaxed") instead of its own (a track's ``rest``;
+    the named joints of a sidecar's ``[rest]`` still apply)."""
+    model = _mounted_mjcf(path, side, stamp)
+    named = {k: v for k, v in load_sidecar(path).get("rest", {}).items() if k != "pose"}
+    base = dataclasses.replace(model, q_rest=model.clamp_to_limits(torch.zeros(1, model.num_joints,
+                                                                                dtype=model.dtype))[0])
+    return with_rest(base, {"pose": rest, **named}, path)
 
 
 def mount_transform(mount) -> np.ndarray:

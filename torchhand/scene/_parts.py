@@ -65,6 +65,8 @@ class HandTrack:
         mount: None, or 6 floats: the hand model moved on the track by a shift (metres, x y z in the hand frame)
             and a rotation vector (degrees, hand frame), on top of its hand frame; the synthesis' mount fit sets
             it for a robot hand (docs/hand_model.md, "Mounting without tuning")
+        rest: None (the model's own rest pose), "zero" or "relaxed": the rest pose a robot hand starts its
+            inverse kinematics from (:func:`torchhand.hand.mount.with_rest`); the mount fit sets it
     """
 
     side: str
@@ -72,6 +74,7 @@ class HandTrack:
     length: float = 0.19
     model: str = "default"
     mount: tuple | None = None
+    rest: str | None = None
 
     def __post_init__(self):
         if self.side not in SIDES:
@@ -87,6 +90,8 @@ class HandTrack:
                 raise InputValueError(f"HandTrack.mount ({self.side}): expected 6 finite numbers (shift metres, "
                                       f"rotation vector degrees), got {self.mount!r}")
             object.__setattr__(self, "mount", tuple(float(v) for v in m))
+        if self.rest not in (None, "zero", "relaxed"):
+            raise InputValueError(f"HandTrack.rest ({self.side}): expected 'zero' or 'relaxed', got {self.rest!r}")
 
     @property
     def T(self) -> int:

@@ -30,7 +30,7 @@ _SCHEMA = {
     "scene": {"name", "description", "fps", "friction", "gravity", "trajectories", "external_wrench"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
     "environment": {"table", "table_height", "friction"},
-    "hands": {"side", "length", "model", "mount"},
+    "hands": {"side", "length", "model", "mount", "rest"},
     "source": {"kind", "fps", "frames", "first_frame", "units_scale", "up_axis", "handedness", "wrists"},
     "source.wrists": {"side", "file", "joint", "rotation"},
 }
@@ -163,7 +163,10 @@ def load_scene_dir(directory: Path) -> Scene:
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in mount)):
             raise FileFormatError(f"{toml_path}: field hands[{i}].mount: expected 6 finite numbers (shift metres, "
                                   f"rotation vector degrees), got {mount!r}")
-        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model, mount))
+        rest = r.get(hd, f"hands[{i}]", "rest", "str", None)
+        if rest not in (None, "zero", "relaxed"):
+            raise FileFormatError(f"{toml_path}: field hands[{i}].rest: expected \"zero\" or \"relaxed\", got {rest!r}")
+        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model, mount, rest))
     if len({h[0] for h in hand_specs}) != len(hand_specs):
         raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[h[0] for h in hand_specs]}")
 
@@ -183,8 +186,8 @@ def load_scene_dir(directory: Path) -> Scene:
 
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
     hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model,
-                            mount=None if mount is None else tuple(mount))
-                  for s, length, model, mount in hand_specs)
+                            mount=None if mount is None else tuple(mount), rest=rest)
+                  for s, length, model, mount, rest in hand_specs)
     try:
         source = _read_source(r, doc) if "source" in doc else None
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,

@@ -99,6 +99,8 @@ def _write_files(scene: Scene, out: Path) -> None:
             entry["model"] = _write_hand(h, out)
         if h.mount is not None:
             entry["mount"] = [float(v) for v in h.mount]
+        if h.rest is not None:
+            entry["rest"] = h.rest
         text += "\n[[hands]]\n" + tomli_w.dumps(entry)
     (out / _SCENE_TOML).write_text(text, encoding="utf-8")
 

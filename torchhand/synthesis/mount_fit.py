@@ -44,6 +44,9 @@ REACH_ENOUGH = 0.005
 """A finger reaches enough of the object at a frame when this fraction of its surface lies in its workspace: more
 is not better (a grip needs a contact per finger, not a large area; without the cap the fit would centre every
 object in the fingers' workspace and pull hands back from tracks made for them)."""
+REST_CLEARANCE = 0.002
+"""The relaxed rest pose is taken when no surface sample of the hand, so posed and mounted, lies deeper than this
+inside the object at the fit's frames (metres)."""
 PALM_PENALTY = 30.0
 """Score lost per metre of palm penetration into the object (5 mm costs 0.15 of the score's range 0..1)."""
 MOVE_PENALTY = 0.002
@@ -62,6 +65,7 @@ class MountFit:
 
     side: str
     mount: tuple
+    rest: str
     score: float
     score_unmoved: float
     reach: tuple
@@ -71,7 +75,8 @@ class MountFit:
     def describe(self) -> str:
         s, r = np.asarray(self.mount[:3]) * 1000, np.asarray(self.mount[3:])
         return (f"mount fit ({self.side}): shift ({s[0]:+.1f}, {s[1]:+.1f}, {s[2]:+.1f}) mm, rotation "
-                f"({r[0]:+.1f}, {r[1]:+.1f}, {r[2]:+.1f}) deg; reach score {self.score_unmoved:.3f} -> {self.score:.3f}")
+                f"({r[0]:+.1f}, {r[1]:+.1f}, {r[2]:+.1f}) deg, rest {self.rest}; reach score "
+                f"{self.score_unmoved:.3f} -> {self.score:.3f}")
 
 
 def fit_mounts(scene, *, frames: tuple[int, int] | None = None):
@@ -84,18 +89,32 @@ def fit_mounts(scene, *, frames: tuple[int, int] | None = None):
             continue
         fit = fit_mount(scene, track.side, frames=frames)
         fits.append(fit)
-        hands.append(dataclasses.replace(track, mount=fit.mount))
+        hands.append(dataclasses.replace(track, mount=fit.mount, rest=fit.rest))
     return dataclasses.replace(scene, hands=tuple(hands)), tuple(fits)
 
 
 def fit_mount(scene, side: str, *, frames: tuple[int, int] | None = None, n_frames: int = 8,
               surface_samples: int = 600) -> MountFit:
-    """The mount of ``scene``'s ``side`` hand that maximises reach (module docstring), over ``frames``
-    (start, stop) of the scene (default all), ``n_frames`` of them evenly spread."""
+    """The mount and rest pose of ``scene``'s ``side`` hand (module docstring), over ``frames`` (start, stop) of
+    the scene (default all), ``n_frames`` of them evenly spread."""
     track = scene.hand(side)
-    hand = track_hand(dataclasses.replace(track, mount=None))
     a, b = frames if frames is not None else (0, scene.T)
     ks = tuple(sorted({int(round(v)) for v in np.linspace(a, b - 1, min(n_frames, b - a))}))
+    ctx = _context(scene, track, ks, surface_samples)
+    unmoved = float(_score(ctx, np.zeros((1, 6)), REACH_ENOUGH)[0])
+    best, best_s = np.zeros(6), unmoved
+    for c, _ in _rank(ctx):
+        s = float(_score(ctx, c[None], REACH_ENOUGH)[0])
+        if s > best_s:
+            best, best_s = c, s
+    rest = _rest(scene, track, best, ks)
+    return MountFit(side=side, mount=tuple(float(v) for v in best), rest=rest, score=best_s, score_unmoved=unmoved,
+                    reach=tuple(_reach(ctx, best[None])[0].tolist()),
+                    reach_unmoved=tuple(_reach(ctx, np.zeros((1, 6)))[0].tolist()), frames=ks)
+
+
+def _context(scene, track, ks: tuple, surface_samples: int) -> "_Ctx":
+    hand = track_hand(dataclasses.replace(track, mount=None))
     gen = torch.Generator().manual_seed(0)
     codes = pad_workspace(hand, gen)
     surf, nrm = sample_surface(scene.object.mesh, surface_samples, gen, dtype=torch.float64)
@@ -104,13 +123,33 @@ def fit_mount(scene, side: str, *, frames: tuple[int, int] | None = None, n_fram
     H = torch.linalg.inv(W) @ O  # track hand frame <- object
     pts = torch.einsum("kij,sj->ksi", H[:, :3, :3], surf) + H[:, None, :3, 3]
     inward = -torch.einsum("kij,sj->ksi", H[:, :3, :3], nrm)
-    palm = _palm_points(hand)
     sdf = SDFGrid.from_mesh(scene.object.mesh, 0.003, progress=False, dtype=torch.float64)
-    th = thumb_index(hand)
-    ctx = _Ctx(codes, pts, inward, palm, torch.linalg.inv(O) @ W, sdf, th)
-    zero = np.zeros(6)
-    best = _score(ctx, zero[None])[0]
-    best_m, best_s = zero, best
+    return _Ctx(codes, pts, inward, _palm_points(hand), torch.linalg.inv(O) @ W, sdf, thumb_index(hand))
+
+
+def _rest(scene, track, mount: np.ndarray, ks: tuple) -> str:
+    """"relaxed" when the hand at its relaxed rest pose, so mounted, stays out of the object at the frames ``ks``
+    (no surface sample deeper than ``REST_CLEARANCE``), else "zero"; a sidecar's ``[rest] pose`` wins."""
+    named = load_sidecar(track.model).get("rest", {}).get("pose") if track.model != "default" else None
+    if named:
+        return named
+    hand = track_hand(dataclasses.replace(track, mount=tuple(mount), rest="relaxed"))
+    O = scene.object_pose.double()[list(ks)]
+    W = track.wrist_pose.double()[list(ks)]
+    T = hand.forward_kinematics(hand.q_rest[None].double().expand(len(ks), -1), W)  # (K, L, 4, 4)
+    G = torch.linalg.inv(O)[:, None] @ T  # object <- link
+    lk = hand.sample_link
+    pts = torch.einsum("kpij,pj->kpi", G[:, lk, :3, :3], hand.sample_points.double()) + G[:, lk, :3, 3]
+    sdf = SDFGrid.from_mesh(scene.object.mesh, 0.003, progress=False, dtype=torch.float64)
+    depth = float((-sdf.query(pts)).max())
+    return "relaxed" if depth <= REST_CLEARANCE else "zero"
+
+
+def _rank(ctx: "_Ctx") -> list:
+    """Candidate mounts (6,) with their uncapped reach score, best first: shifts on a 5 mm grid within +/- 2 cm,
+    rotation vectors on a 5 degree grid within +/- 10 degrees at the best shift, shifts refined by 2.5 mm."""
+    seen = [(np.zeros(6), float(_score(ctx, np.zeros((1, 6)))[0]))]
+    best = seen[0]
     step = 0.005
     shifts = np.array(list(itertools.product(np.arange(-4, 5) * step, repeat=3)))
     for stage in range(3):
@@ -118,17 +157,16 @@ def fit_mount(scene, side: str, *, frames: tuple[int, int] | None = None, n_fram
             cands = np.concatenate([shifts, np.zeros_like(shifts)], 1)
         elif stage == 1:
             rots = np.array(list(itertools.product(np.arange(-2, 3) * 5.0, repeat=3)))
-            cands = np.concatenate([np.repeat(best_m[None, :3], len(rots), 0), rots], 1)
+            cands = np.concatenate([np.repeat(best[0][None, :3], len(rots), 0), rots], 1)
         else:
             fine = np.array(list(itertools.product(np.arange(-1, 2) * step / 2, repeat=3)))
-            cands = np.concatenate([best_m[None, :3] + fine, np.repeat(best_m[None, 3:], len(fine), 0)], 1)
+            cands = np.concatenate([best[0][None, :3] + fine, np.repeat(best[0][None, 3:], len(fine), 0)], 1)
         scores = _score(ctx, cands)
+        seen.extend(zip(cands, scores.tolist()))
         k = int(np.argmax(scores))
-        if scores[k] > best_s:
-            best_m, best_s = cands[k], float(scores[k])
-    return MountFit(side=side, mount=tuple(float(v) for v in best_m), score=float(best_s), score_unmoved=float(best),
-                    reach=tuple(_reach(ctx, best_m[None])[0].tolist()), reach_unmoved=tuple(_reach(ctx, zero[None])[0]
-                                                                                        .tolist()), frames=ks)
+        if scores[k] > best[1]:
+            best = (cands[k], float(scores[k]))
+    return sorted(seen, key=lambda cs: -cs[1])
 
 
 @dataclass(frozen=True)
@@ -190,7 +228,7 @@ def _reach(ctx: _Ctx, cands: np.ndarray) -> torch.Tensor:
     return torch.stack([_pad_reach(local, inward, c).double().mean((1, 2)) for c in ctx.codes], 1)
 
 
-def _score(ctx: _Ctx, cands: np.ndarray) -> np.ndarray:
+def _score(ctx: _Ctx, cands: np.ndarray, cap: float | None = None) -> np.ndarray:
     M = _transforms(cands)
     M_inv = torch.linalg.inv(M)
     local = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.pts) + M_inv[:, None, None, :3, 3]
@@ -199,7 +237,7 @@ def _score(ctx: _Ctx, cands: np.ndarray) -> np.ndarray:
     th = ctx.thumb if ctx.thumb is not None else int(A.mean((0, 1)).argmax())
     others = torch.cat([A[..., :th], A[..., th + 1:]], -1)
     second = others.sort(-1, descending=True).values[..., min(1, others.shape[-1] - 1)]
-    sat = lambda a: (a / REACH_ENOUGH).clamp_max(1.0)
+    sat = (lambda a: (a / cap).clamp_max(1.0)) if cap else (lambda a: a)
     reach = torch.sqrt(sat(A[..., th]) * sat(second)).mean(1)  # (C,)
     G = ctx.obj_from_hand[None] @ M[:, None]  # (C, K, 4, 4) object <- model hand frame
     palm = torch.einsum("ckij,hj->ckhi", G[..., :3, :3], ctx.palm) + G[..., None, :3, 3]

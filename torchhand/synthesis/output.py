@@ -135,7 +135,9 @@ def stats_dict(result: SynthesisResult, *, threads: int | None = None) -> dict:
         "slide_speed": result.node_settings.slide_speed,
         "rejections_by_frame": [list(r) for r in st.rejections_by_frame],
         "mount": {t.side: (list(t.mount) if t.mount is not None else None) for t in scene.hands},
-        "mount_fit": [{"side": f.side, "mount": list(f.mount), "score": f.score, "score_unmoved": f.score_unmoved,
+        "rest": {t.side: t.rest for t in scene.hands},
+        "mount_fit": [{"side": f.side, "mount": list(f.mount), "rest": f.rest, "score": f.score,
+                       "score_unmoved": f.score_unmoved,
                        "reach": list(f.reach), "reach_unmoved": list(f.reach_unmoved), "frames": list(f.frames)}
                       for f in result.mount_fits],
     }
