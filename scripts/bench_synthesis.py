@@ -14,6 +14,10 @@ in the same run (and the paper's), and the independent checks (:mod:`torchhand.c
 
     python scripts/bench_synthesis.py nodes --json bench_nodes.json [--hands default shadow allegro]
     python scripts/bench_synthesis.py scenes --max-nodes 60000 --json bench_scenes.json
+    python scripts/bench_synthesis.py hands --max-nodes 40000 --json bench_hands.json [--hands shadow leap ...]
+
+``hands``: each robot hand of the shared data (no sidecar; the mount fitted, docs/hand_model.md) on ``cube-turn``
+(``--hand-scenes``), the same columns and checks, with the fitted mount.
 """
 
 from __future__ import annotations
@@ -36,7 +40,17 @@ SCENES = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box")
 
 
 HANDS = {"default": "default", "shadow": "hands/shadow_hand/right_hand.xml",
-         "allegro": "hands/allegro_hand/right_hand.xml"}
+         "allegro": "hands/allegro_hand/right_hand.xml", "leap": "hands/urdf/leap_hand/leap_hand_right.urdf",
+         "allegro_urdf": "hands/urdf/allegro_hand/allegro_hand_right.urdf"}
+
+
+def hand_path(hand: str) -> str:
+    """The file of a named shared hand (``HANDS``), or ``hand`` itself (a path)."""
+    path = HANDS.get(hand)
+    if path is None:
+        return os.path.abspath(hand)
+    data = os.environ.get("TORCHHAND_SHARED_DATA", os.path.join(HERE, "..", "..", "shared", "data"))
+    return os.path.abspath(os.path.join(data, path))
 
 
 def scene_with_hand(hand: str):
@@ -48,13 +62,7 @@ def scene_with_hand(hand: str):
     scene = torchhand.load_scene("box-turn")
     if hand == "default":
         return scene
-    path = HANDS.get(hand)
-    if path is not None:
-        data = os.environ.get("TORCHHAND_SHARED_DATA", os.path.join(HERE, "..", "..", "shared", "data"))
-        path = os.path.join(data, path)
-    else:
-        path = hand
-    return dataclasses.replace(scene, hands=(dataclasses.replace(scene.hands[0], model=os.path.abspath(path)),))
+    return dataclasses.replace(scene, hands=(dataclasses.replace(scene.hands[0], model=hand_path(hand)),))
 
 
 def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: int = 30, hand: str = "default"):
@@ -133,14 +141,28 @@ def one_at_a_time_rate(device: str = "cpu", dtype=torch.float32, loop: int = 16,
 
 def bench_scenes(scenes=SCENES, max_nodes: int = 60000, seed: int = 0, mug: str | None = None,
                  mug_frames: str = "614:674", mug_slide_speed: float = 0.05, threads: int = 1) -> list[dict]:
+    jobs = [(s, s, None, []) for s in scenes]
+    if mug:
+        jobs.append((f"manipnet-mug {mug_frames}", mug, mug_frames, ["--slide-speed", str(mug_slide_speed)]))
+    return run_jobs(jobs, max_nodes, seed, threads)
+
+
+def bench_hands(hands, scenes=("cube-turn",), max_nodes: int = 40000, seed: int = 0, solutions: int = 3,
+                threads: int = 1) -> list[dict]:
+    """Each robot hand (``HANDS`` names or paths) on each scene, no sidecar, the mount fitted: the Table 1 columns,
+    the fitted mount and the checks of every solution written."""
+    jobs = [(f"{s} {h}", s, None, ["--hand", f"right={hand_path(h)}", "--solutions", str(solutions)])
+            for h in hands for s in scenes]
+    return run_jobs(jobs, max_nodes, seed, threads)
+
+
+def run_jobs(jobs, max_nodes: int, seed: int, threads: int) -> list[dict]:
+    """``torchhand synthesize`` for each (label, scene, frames, extra args), then ``check_result``: one row each."""
     from torchhand.cli import main as cli
     from torchhand.check import check_result
 
     rows = []
     one = one_at_a_time_rate()
-    jobs = [(s, s, None, []) for s in scenes]
-    if mug:
-        jobs.append((f"manipnet-mug {mug_frames}", mug, mug_frames, ["--slide-speed", str(mug_slide_speed)]))
     for label, scene, frames, extra in jobs:
         out = tempfile.mkdtemp(prefix="bench-synth-")
         argv = ["synthesize", scene, "--out", out, "--max-nodes", str(max_nodes), "--seed", str(seed),
@@ -167,13 +189,14 @@ def bench_scenes(scenes=SCENES, max_nodes: int = 60000, seed: int = 0, mug: str 
                      "diversity_m": stats["diversity_m"], "checks_pass": report.passed,
                      "checks_failed": len(report.failures),
                      "worst_penetration_mm": 1000 * penetration,
-                     "worst_balance_rel": max(worst.get("force_error", 0.0), worst.get("torque_error", 0.0))})
+                     "worst_balance_rel": max(worst.get("force_error", 0.0), worst.get("torque_error", 0.0)),
+                     "mount": stats.get("mount"), "rest": stats.get("rest")})
     return rows
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("suite", choices=["nodes", "scenes", "all"])
+    p.add_argument("suite", choices=["nodes", "scenes", "hands", "all"])
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--batch", type=int, nargs="+", default=[64, 256, 1024])
@@ -186,16 +209,19 @@ def main(argv=None) -> int:
     p.add_argument("--mug-slide-speed", type=float, default=0.05,
                    help="--slide-speed of the mocap segment (default 0.05 m/s)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one run per scene and seed (default 0)")
-    p.add_argument("--hands", nargs="+", default=["default"],
-                   help="nodes: hands on box-turn's track: default, shadow, allegro (shared data) or MJCF paths")
+    p.add_argument("--hands", nargs="+", default=None,
+                   help="nodes: hands on box-turn's track (default: default); hands: the robot hands run (default: "
+                        "shadow allegro leap allegro_urdf); names of shared hands or MJCF/URDF paths")
+    p.add_argument("--hand-scenes", nargs="+", default=["cube-turn"], help="hands: the scenes (default cube-turn)")
+    p.add_argument("--solutions", type=int, default=3, help="hands: solutions asked per run (default 3)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     out = {"machine": machine(), "command": " ".join(sys.argv), "threads": a.threads}
     print(f"machine: {out['machine']}")
     if a.suite in ("nodes", "all"):
-        rows = [r for hand in a.hands for r in bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats,
-                                                            hand=hand)]
+        rows = [r for hand in (a.hands or ["default"])
+                for r in bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats, hand=hand)]
         print("\n[node tests]")
         print_table(rows, ["name", "hand", "device", "dtype", "N", "median_s", "iqr_s", "nodes_per_s",
                            "vs_sequential", "vs_paper", "feasible_frac"])
@@ -206,6 +232,13 @@ def main(argv=None) -> int:
         print("\n[scenes: Ye & Liu Table 1 columns]")
         print_table(rows, list(rows[0].keys()))
         out["scenes"] = rows
+    if a.suite == "hands":
+        rows = bench_hands(a.hands or ["shadow", "allegro", "leap", "allegro_urdf"], a.hand_scenes, a.max_nodes,
+                           a.seeds[0], a.solutions, a.threads)
+        print("\n[robot hands, no sidecar, mount fitted]")
+        print_table(rows, ["scene", "solutions", "nodes_tested", "nodes_per_s", "stopped_by", "checks_pass",
+                           "checks_failed", "worst_penetration_mm", "time_s"])
+        out["hands"] = rows
     if a.json:
         write_json(a.json, out)
         print(f"wrote {a.json}")

@@ -106,10 +106,13 @@ def fit_capsules(L, geoms, lidx):
     """One capsule per link approximating its geometry (finger-finger checks, penetration proxies): a capsule geom
     is used as is; otherwise the segment runs along the principal axis of the geometry's points, with the 90th
     percentile of their distance to the axis as radius, or the geometry's half-thickness (along its least principal
-    axis) when that is smaller (flat links)."""
+    axis) when that is smaller (flat links). Also returns, per link, the largest distance of its geometry (sample
+    points, box corners, mesh vertices) from that axis, the radius of a capsule on the same segment that covers the
+    link's sides: ``(a (L, 3), b (L, 3), r (L,), cover (L,))``."""
     a = np.zeros((L, 3))
     b = np.zeros((L, 3))
     r = np.zeros(L)
+    cover = np.zeros(L)
     for li in range(L):
         gs = [g for g in geoms if lidx[g.link] == li]
         if not gs:
@@ -121,7 +124,7 @@ def fit_capsules(L, geoms, lidx):
             h = float(np.resize(g.size, 3)[1])
             a[li] = tr - R[:, 2] * h
             b[li] = tr + R[:, 2] * h
-            r[li] = float(np.resize(g.size, 3)[0])
+            r[li] = cover[li] = float(np.resize(g.size, 3)[0])
             continue
         p = np.concatenate([geom_points(g, 200)[0] for g in gs])
         c = p.mean(0)
@@ -137,40 +140,18 @@ def fit_capsules(L, geoms, lidx):
         if lo > hi:
             lo = hi = 0.5 * (s.min() + s.max())
         a[li], b[li], r[li] = c + lo * ax, c + hi * ax, rad
-    return a, b, r
+        q = np.concatenate([p] + [_corners(g) for g in gs]) - c
+        cover[li] = max(rad, float(np.linalg.norm(q - np.outer(q @ ax, ax), axis=1).max()))
+    return a, b, r, cover
 
 
-def geom_trimesh(kind: str, size, mesh=None, *, sections: int = 16) -> trimesh.Trimesh:
-    """A triangle mesh of one collision geom in its own frame, MJCF size semantics: capsule and cylinder along z
-    (radius, half-length), sphere (radius), box (half-extents), mesh (vertices (V, 3), faces (F, 3))."""
-    s = np.resize(np.asarray(size, dtype=np.float64), 3)
-    if kind == "capsule":
-        m = trimesh.creation.capsule(height=2 * s[1], radius=s[0], count=[sections, sections // 2 + 2])
-        m.apply_translation(-0.5 * (m.bounds[0] + m.bounds[1]))       # centred (trimesh versions differ)
-        return m
-    if kind == "sphere":
-        return trimesh.creation.icosphere(subdivisions=2, radius=s[0])
-    if kind == "cylinder":
-        return trimesh.creation.cylinder(radius=s[0], height=2 * s[1], sections=sections)
-    if kind == "box":
-        return trimesh.creation.box(extents=2 * s)
-    V, F = mesh
-    return trimesh.Trimesh(np.asarray(V, dtype=np.float64), np.asarray(F), process=False)
-
-
-def link_geom_meshes(model, *, sections: int = 16) -> dict[int, list[trimesh.Trimesh]]:
-    """link index -> the link's collision geoms as triangle meshes in the link frame (:func:`geom_trimesh`)."""
-    g = model.geoms
-    size = g.size.detach().cpu().double().numpy()
-    pose = g.pose.detach().cpu().double().numpy()
-    out: dict[int, list[trimesh.Trimesh]] = {}
-    for i, (link, t) in enumerate(zip(g.link.tolist(), g.type.tolist())):
-        kind = GEOM_TYPES[t]
-        mesh = None
-        if kind == "mesh":
-            mv, mf = g.meshes[int(g.mesh_index[i])]
-            mesh = (mv.detach().cpu().double().numpy(), mf.detach().cpu().numpy())
-        m = geom_trimesh(kind, size[i], mesh, sections=sections)
-        m.apply_transform(pose[i])
-        out.setdefault(link, []).append(m)
-    return out
+def _corners(g: GeomSpec) -> np.ndarray:
+    """A geom's box corners or mesh vertices in the link frame ((0, 3) for round geoms, which samples cover)."""
+    if g.type == "box":
+        s = np.resize(np.asarray(g.size, dtype=np.float64), 3)
+        c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * s
+    elif g.type == "mesh":
+        c = np.asarray(g.mesh[0], dtype=np.float64)
+    else:
+        return np.zeros((0, 3))
+    return c @ g.pose[:3, :3].T + g.pose[:3, 3]

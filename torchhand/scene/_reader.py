@@ -142,31 +142,7 @@ def load_scene_dir(directory: Path) -> Scene:
     if not isinstance(hands_doc, list) or not 1 <= len(hands_doc) <= 2:
         raise FileFormatError(f"{toml_path}: expected 1 or 2 [[hands]] tables, got "
                               f"{len(hands_doc) if isinstance(hands_doc, list) else repr(hands_doc)}")
-    hand_specs = []
-    for i, hd in enumerate(hands_doc):
-        if not isinstance(hd, dict):
-            raise FileFormatError(f"{toml_path}: hands[{i}] must be a table")
-        r.unknown(hd, "hands")
-        side = r.get(hd, f"hands[{i}]", "side", "str")
-        if side not in SIDES:
-            raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
-        model = r.get(hd, f"hands[{i}]", "model", "str", "default")
-        if model != "default":
-            mpath = (directory / model).resolve()
-            if not mpath.is_file():
-                raise MissingFileError(f"{toml_path}: hands[{i}].model '{mpath}' does not exist (an MJCF or URDF "
-                                       "hand file, "
-                                       "relative to the scene directory, or \"default\")")
-            model = str(mpath)
-        mount = hd.get("mount")
-        if mount is not None and not (isinstance(mount, list) and len(mount) == 6 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in mount)):
-            raise FileFormatError(f"{toml_path}: field hands[{i}].mount: expected 6 finite numbers (shift metres, "
-                                  f"rotation vector degrees), got {mount!r}")
-        rest = r.get(hd, f"hands[{i}]", "rest", "str", None)
-        if rest not in (None, "zero", "relaxed"):
-            raise FileFormatError(f"{toml_path}: field hands[{i}].rest: expected \"zero\" or \"relaxed\", got {rest!r}")
-        hand_specs.append((side, r.positive(hd, f"hands[{i}]", "length", 0.19), model, mount, rest))
+    hand_specs = [_hand_entry(r, toml_path, directory, i, hd) for i, hd in enumerate(hands_doc)]
     if len({h[0] for h in hand_specs}) != len(hand_specs):
         raise InputValueError(f"{toml_path}: [[hands]] sides must be distinct, got {[h[0] for h in hand_specs]}")
 
@@ -265,3 +241,29 @@ def _read_trajectories(path: Path, keys: list[str], external_flag: bool | None =
         t = int(np.flatnonzero(~np.isfinite(ext).all(1))[0])
         raise InputValueError(f"{path}: {_EXTERNAL}: expected finite values, frame {t} has {ext[t].tolist()}")
     return out, torch.tensor(ext, dtype=torch.float64)
+
+
+def _hand_entry(r, toml_path, directory, i: int, hd) -> tuple:
+    """(side, length, model path or "default", mount or None, rest or None) of ``[[hands]]`` entry ``i``."""
+    if not isinstance(hd, dict):
+        raise FileFormatError(f"{toml_path}: hands[{i}] must be a table")
+    r.unknown(hd, "hands")
+    side = r.get(hd, f"hands[{i}]", "side", "str")
+    if side not in SIDES:
+        raise InputValueError(f"{toml_path}: field hands[{i}].side: expected 'right' or 'left', got {side!r}")
+    model = r.get(hd, f"hands[{i}]", "model", "str", "default")
+    if model != "default":
+        mpath = (directory / model).resolve()
+        if not mpath.is_file():
+            raise MissingFileError(f"{toml_path}: hands[{i}].model '{mpath}' does not exist (an MJCF or URDF "
+                                   "hand file, relative to the scene directory, or \"default\")")
+        model = str(mpath)
+    mount = hd.get("mount")
+    if mount is not None and not (isinstance(mount, list) and len(mount) == 6 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in mount)):
+        raise FileFormatError(f"{toml_path}: field hands[{i}].mount: expected 6 finite numbers (shift metres, "
+                              f"rotation vector degrees), got {mount!r}")
+    rest = r.get(hd, f"hands[{i}]", "rest", "str", None)
+    if rest not in (None, "zero", "relaxed"):
+        raise FileFormatError(f"{toml_path}: field hands[{i}].rest: expected \"zero\" or \"relaxed\", got {rest!r}")
+    return side, r.positive(hd, f"hands[{i}]", "length", 0.19), model, mount, rest
