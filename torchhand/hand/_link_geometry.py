@@ -155,3 +155,39 @@ def _corners(g: GeomSpec) -> np.ndarray:
     else:
         return np.zeros((0, 3))
     return c @ g.pose[:3, :3].T + g.pose[:3, 3]
+
+
+def geom_trimesh(kind: str, size, mesh=None, *, sections: int = 16) -> trimesh.Trimesh:
+    """A triangle mesh of one collision geom in its own frame, MJCF size semantics: capsule and cylinder along z
+    (radius, half-length), sphere (radius), box (half-extents), mesh (vertices (V, 3), faces (F, 3))."""
+    s = np.resize(np.asarray(size, dtype=np.float64), 3)
+    if kind == "capsule":
+        m = trimesh.creation.capsule(height=2 * s[1], radius=s[0], count=[sections, sections // 2 + 2])
+        m.apply_translation(-0.5 * (m.bounds[0] + m.bounds[1]))       # centred (trimesh versions differ)
+        return m
+    if kind == "sphere":
+        return trimesh.creation.icosphere(subdivisions=2, radius=s[0])
+    if kind == "cylinder":
+        return trimesh.creation.cylinder(radius=s[0], height=2 * s[1], sections=sections)
+    if kind == "box":
+        return trimesh.creation.box(extents=2 * s)
+    V, F = mesh
+    return trimesh.Trimesh(np.asarray(V, dtype=np.float64), np.asarray(F), process=False)
+
+
+def link_geom_meshes(model, *, sections: int = 16) -> dict[int, list[trimesh.Trimesh]]:
+    """link index -> the link's collision geoms as triangle meshes in the link frame (:func:`geom_trimesh`)."""
+    g = model.geoms
+    size = g.size.detach().cpu().double().numpy()
+    pose = g.pose.detach().cpu().double().numpy()
+    out: dict[int, list[trimesh.Trimesh]] = {}
+    for i, (link, t) in enumerate(zip(g.link.tolist(), g.type.tolist())):
+        kind = GEOM_TYPES[t]
+        mesh = None
+        if kind == "mesh":
+            mv, mf = g.meshes[int(g.mesh_index[i])]
+            mesh = (mv.detach().cpu().double().numpy(), mf.detach().cpu().numpy())
+        m = geom_trimesh(kind, size[i], mesh, sections=sections)
+        m.apply_transform(pose[i])
+        out.setdefault(link, []).append(m)
+    return out
