@@ -182,32 +182,3 @@ def test_bad_files_are_one_line(tmp_path):
     with pytest.raises(FileFormatError) as err:
         HandModel.from_file(bad)
     assert "MuJoCo cannot compile it" in str(err.value) and "\n" not in str(err.value)
-
-
-@pytest.mark.parametrize("key", sorted(HANDS))
-def test_finger_capsules_cover_the_geoms(key):
-    """The search's finger-finger test uses ``capsule_cover``: at least the fitted radius, as wide as the sides of
-    each link's geoms (box corners and mesh vertices included), except on links of pairs whose full covers would
-    overlap at the file's zero pose, where the fingers are apart by design: those give up just the overlap."""
-    from torchhand.hand._link_geometry import fit_capsules
-    from torchhand.hand.collision import finger_interpenetration
-    from torchhand.kernels.penetration import capsule_interpenetration
-    from torchhand.hand._read import read_hand_file
-
-    spec = read_hand_file(shared_path("hands", HANDS[key][0]))
-    hand = HandModel.from_file(shared_path("hands", HANDS[key][0]))
-    lidx = {n: i for i, n in enumerate(hand.link_names)}
-    _, _, r, full = fit_capsules(hand.num_links, list(spec.geoms), lidx)
-    assert np.allclose(r, hand.capsule_radius.numpy()) and bool((hand.capsule_cover >= hand.capsule_radius).all())
-    q0 = hand.clamp_to_limits(torch.zeros(1, hand.num_joints, dtype=hand.dtype))
-    poses = hand.forward_kinematics(q0)
-    assert float(finger_interpenetration(hand, poses).max()) <= 1e-9
-    depth = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, torch.as_tensor(full),
-                                     hand.collision_pairs)[0][0]
-    may_shrink = set(hand.collision_pairs[depth > 0].flatten().tolist())
-    for l in range(hand.num_links):
-        if l not in may_shrink:
-            assert float(hand.capsule_cover[l]) == pytest.approx(full[l], abs=1e-12)
-    if key.startswith("allegro"):                   # its box phalanges: the cover is wider than the fitted radius
-        d = [int(hand.finger_links[f, 2]) for f in range(hand.num_fingers)]
-        assert bool((hand.capsule_cover[d] > hand.capsule_radius[d] + 0.002).all())

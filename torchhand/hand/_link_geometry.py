@@ -106,13 +106,10 @@ def fit_capsules(L, geoms, lidx):
     """One capsule per link approximating its geometry (finger-finger checks, penetration proxies): a capsule geom
     is used as is; otherwise the segment runs along the principal axis of the geometry's points, with the 90th
     percentile of their distance to the axis as radius, or the geometry's half-thickness (along its least principal
-    axis) when that is smaller (flat links). Also returns, per link, the largest distance of its geometry (sample
-    points, box corners, mesh vertices) from that axis, the radius of a capsule on the same segment that covers the
-    link's sides: ``(a (L, 3), b (L, 3), r (L,), cover (L,))``."""
+    axis) when that is smaller (flat links)."""
     a = np.zeros((L, 3))
     b = np.zeros((L, 3))
     r = np.zeros(L)
-    cover = np.zeros(L)
     for li in range(L):
         gs = [g for g in geoms if lidx[g.link] == li]
         if not gs:
@@ -124,7 +121,7 @@ def fit_capsules(L, geoms, lidx):
             h = float(np.resize(g.size, 3)[1])
             a[li] = tr - R[:, 2] * h
             b[li] = tr + R[:, 2] * h
-            r[li] = cover[li] = float(np.resize(g.size, 3)[0])
+            r[li] = float(np.resize(g.size, 3)[0])
             continue
         p = np.concatenate([geom_points(g, 200)[0] for g in gs])
         c = p.mean(0)
@@ -140,21 +137,7 @@ def fit_capsules(L, geoms, lidx):
         if lo > hi:
             lo = hi = 0.5 * (s.min() + s.max())
         a[li], b[li], r[li] = c + lo * ax, c + hi * ax, rad
-        q = np.concatenate([p] + [_corners(g) for g in gs]) - c
-        cover[li] = max(rad, float(np.linalg.norm(q - np.outer(q @ ax, ax), axis=1).max()))
-    return a, b, r, cover
-
-
-def _corners(g: GeomSpec) -> np.ndarray:
-    """A geom's box corners or mesh vertices in the link frame ((0, 3) for round geoms, which samples cover)."""
-    if g.type == "box":
-        s = np.resize(np.asarray(g.size, dtype=np.float64), 3)
-        c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * s
-    elif g.type == "mesh":
-        c = np.asarray(g.mesh[0], dtype=np.float64)
-    else:
-        return np.zeros((0, 3))
-    return c @ g.pose[:3, :3].T + g.pose[:3, 3]
+    return a, b, r
 
 
 def geom_trimesh(kind: str, size, mesh=None, *, sections: int = 16) -> trimesh.Trimesh:

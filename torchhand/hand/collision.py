@@ -55,5 +55,5 @@ def finger_interpenetration(hand: HandModel, link_poses: torch.Tensor) -> torch.
     B = link_poses.shape[0]
     check_tensor(link_poses, "link_poses", (B, hand.num_links, 4, 4))
     depth, _, _ = capsule_interpenetration(link_poses, hand.capsule_a.to(link_poses), hand.capsule_b.to(link_poses),
-                                           hand.capsule_cover.to(link_poses), hand.collision_pairs)
+                                           hand.capsule_radius.to(link_poses), hand.collision_pairs)
     return depth

@@ -13,7 +13,6 @@ Conventions (see :mod:`torchhand.conventions`): metres, radians, column-vector 4
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -99,9 +98,6 @@ class HandModel:
         :func:`build_hand_model` and :mod:`torchhand.hand.dynamics`)
     couplings: the joint couplings the source file declares (:class:`CouplingSpec`: fixed tendons, joint
         equalities), reported only: every joint moves freely within its limits
-    capsule_cover: (L,) radius about the same segment that covers the link's whole geometry (>= capsule_radius;
-        equal for a link that is one capsule): the finger-finger tests of the search use it, so that fingers of
-        boxes and meshes (the Allegro hand's) keep apart as their true geoms do; defaults to capsule_radius
     """
 
     name: str
@@ -132,13 +128,10 @@ class HandModel:
     link_com: torch.Tensor | None = None
     link_inertia: torch.Tensor | None = None
     couplings: tuple = ()
-    capsule_cover: torch.Tensor | None = None
 
     def __post_init__(self):
         L = len(self.link_names)
         like = self.joint_limits
-        if self.capsule_cover is None:
-            object.__setattr__(self, "capsule_cover", self.capsule_radius)
         if self.link_mass is None:
             object.__setattr__(self, "link_mass", like.new_zeros(L))
         if self.link_com is None:
@@ -356,7 +349,7 @@ def build_hand_model(
     link_geoms = _link_geoms(geoms, tree.lidx, dtype)
     L, lidx = len(links), tree.lidx
     mass, com, inertia = _dyn.link_inertials(name, tree.link_names, geoms, inertials, density)
-    cap_a, cap_b, cap_r, cap_cover = _fit_capsules(L, geoms, lidx)
+    cap_a, cap_b, cap_r = _fit_capsules(L, geoms, lidx)
     pts, nrm, lnk = _surface_samples(L, geoms, lidx, samples_per_area, min_samples_per_link)
     ft = _build.finger_tables(fingers, tree, cap_r)
     F, finger_links = len(fingers), ft.finger_links
@@ -364,7 +357,7 @@ def build_hand_model(
     def t(a, dt=dtype):
         return as_tensor(a, dt)
 
-    return _fit_cover(HandModel(
+    return HandModel(
         name=name,
         side=side,
         length=float(length),
@@ -394,34 +387,7 @@ def build_hand_model(
         link_com=t(com),
         link_inertia=t(inertia),
         couplings=tuple(couplings),
-        capsule_cover=t(cap_cover),
-    ))
-
-
-def _fit_cover(model: HandModel, rounds: int = 8) -> HandModel:
-    """``model`` with ``capsule_cover`` shrunk (never below ``capsule_radius``) where two fingers' covering capsules
-    overlap at the file's zero pose (clamped to the limits), where the true geoms do not touch by design: each
-    overlapping pair gives up its depth, half from each link. A cover fat enough to overlap there (the LEAP hand's
-    wide servo links, 45 mm apart) would make every pose fail the search's finger-finger test."""
-    if not bool((model.capsule_cover > model.capsule_radius).any()) or model.collision_pairs.numel() == 0:
-        return model
-    from torchhand.kernels.penetration import capsule_interpenetration
-
-    q0 = model.clamp_to_limits(torch.zeros(1, model.num_joints, dtype=model.dtype))
-    poses = model.forward_kinematics(q0)
-    cover = model.capsule_cover.clone()
-    pairs = model.collision_pairs
-    for _ in range(rounds):
-        depth = capsule_interpenetration(poses, model.capsule_a, model.capsule_b, cover, pairs)[0][0]   # (Q,)
-        over = depth > 1e-9
-        if not bool(over.any()):
-            break
-        cut = torch.zeros_like(cover)
-        for (a, b), d in zip(pairs[over].tolist(), depth[over].tolist()):
-            cut[a] = max(float(cut[a]), d / 2)
-            cut[b] = max(float(cut[b]), d / 2)
-        cover = torch.maximum(cover - cut, model.capsule_radius)
-    return dataclasses.replace(model, capsule_cover=cover)
+    )
 
 
 def build_from_spec(spec: HandSpec, **kwargs) -> HandModel:

@@ -178,7 +178,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         errs.append(err)
         pens.append(cdepth.clamp_min(0).amax(-1))
         # finger-finger interpenetration (capsules)
-        depth, _, _ = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_cover,
+        depth, _, _ = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_radius,
                                                hand.collision_pairs)
         capsule_depth.append(depth)
         capsule_pair.append(lf[hand.collision_pairs] + h * F)                      # (Q, 2)

@@ -119,7 +119,7 @@ def finger_pair_parts(hand, poses: torch.Tensor, movable: torch.Tensor, margin: 
 
     pairs = hand.collision_pairs
     T = poses.shape[0]
-    res = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_cover, pairs)
+    res = capsule_interpenetration(poses, hand.capsule_a, hand.capsule_b, hand.capsule_radius, pairs)
     depth, pa, pb = res[0], res[1], res[2]
     d = pa - pb
     n = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)                         # (T, Q, 3) from b toward a
