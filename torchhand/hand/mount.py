@@ -184,10 +184,14 @@ def sidecar_frame(doc: dict, default: np.ndarray) -> np.ndarray:
 
 def mounted(model, F: np.ndarray):
     """``model`` re-rooted on its hand frame ``F`` (4, 4): the root link's offset becomes ``F⁻¹ @ offset``."""
-    inv = np.linalg.inv(np.asarray(F, dtype=np.float64))
+    return _premultiplied(model, np.linalg.inv(np.asarray(F, dtype=np.float64)))
+
+
+def _premultiplied(model, A: np.ndarray):
+    """``model`` with its root link's offset pre-multiplied by ``A`` (4, 4)."""
     ch = model.chain
     off = ch.link_offset.clone()
-    off[0] = torch.as_tensor(inv, dtype=off.dtype, device=off.device) @ off[0]
+    off[0] = torch.as_tensor(A, dtype=off.dtype, device=off.device) @ off[0]
     return dataclasses.replace(model, chain=ch._replace(link_offset=off))
 
 
@@ -213,9 +217,8 @@ def track_hand(track):
         raise MissingFileError(f"hands: hand file '{path}' does not exist")
     side_car = sidecar_path(path)
     stamp = (path.stat().st_mtime_ns, side_car.stat().st_mtime_ns if side_car.is_file() else 0)
-    model = _mounted_mjcf(str(path.resolve()), track.side, stamp)
-    if rest is not None:
-        model = _with_rest_cached(str(path.resolve()), track.side, stamp, rest)
+    key = (str(path.resolve()), track.side, stamp)
+    model = _with_rest_cached(*key, rest) if rest is not None else _mounted_mjcf(*key)
     return moved_on_track(model, mount)
 
 
@@ -248,10 +251,7 @@ def moved_on_track(model, mount):
     link's offset pre-multiplied by ``M``. ``model`` itself for None."""
     if mount is None or not any(mount):
         return model
-    ch = model.chain
-    off = ch.link_offset.clone()
-    off[0] = torch.as_tensor(mount_transform(mount), dtype=off.dtype, device=off.device) @ off[0]
-    return dataclasses.replace(model, chain=ch._replace(link_offset=off))
+    return _premultiplied(model, mount_transform(mount))
 
 
 @functools.lru_cache(maxsize=16)

@@ -6,19 +6,20 @@ A scene's wrist track was made for some hand; a robot hand mounted by its hand-f
 ``box-turn``) unable to reach the object at all. :func:`fit_mount` moves the model on the track by ``M`` (a shift
 and a rotation in the hand frame, :func:`torchhand.hand.mount.mount_transform`) chosen by:
 
-* **reach**: at ``frames`` frames spread over the scene, the fraction ``A_f`` of ``surface_samples`` object surface
-  points (fixed generator) inside finger ``f``'s fingertip workspace (the voxelised pad positions of random finger
-  poses, :func:`torchhand.synthesis.problem.finger_workspace`, the same test that gives the search its contact
-  patches), capped at ``REACH_ENOUGH`` and scaled to 1 (``s_f = min(A_f / REACH_ENOUGH, 1)``); per frame
-  ``sqrt(s_thumb * s_2)``, ``s_2`` the second largest among the other fingers (an opposed grip needs the thumb and
-  two fingers), averaged over the frames (1: every frame reachable);
+* **reach**: at ``n_frames`` frames spread over the scene, the fraction ``A_f`` of ``surface_samples`` object
+  surface points (fixed generator) that finger ``f``'s pad touches facing them (:func:`pad_workspace`: pad voxels
+  of 4 mm and facing directions within 50 degrees, over random finger poses), capped at ``REACH_ENOUGH`` and scaled
+  to 1 (``s_f = min(A_f / REACH_ENOUGH, 1)``); per frame ``sqrt(s_thumb * s_2)``, ``s_2`` the second largest among
+  the other fingers (an opposed grip needs the thumb and two fingers), averaged over the frames (1: every frame);
 * **no palm inside the object**: minus ``PALM_PENALTY`` per metre of the deepest penetration of the palm's surface
   samples (links of no finger, at the rest pose) into the object's SDF, averaged over the frames;
 * **small moves**: minus ``MOVE_PENALTY`` per centimetre of shift and per 10 degrees of rotation.
 
-Search, deterministic: shifts on a 5 mm grid within +/- 2 cm (rotation zero), then rotation vectors on a 5 degree
-grid within +/- 10 degrees at the best shift, then shifts refined on a 2.5 mm grid around the best; the best
-candidate of all stages, the unmoved mount among them (so a fit never scores below the rule's mount).
+Search, deterministic: candidates are ranked by the uncapped score (shifts on a 5 mm grid within +/- 2 cm, then
+rotation vectors on a 5 degree grid within +/- 10 degrees at the best shift, then shifts refined on a 2.5 mm grid
+around the best); the fit is the first in that order with the best capped score, the unmoved mount first (so a fit
+never scores below the rule's mount). The rest pose: "relaxed" where the hand so posed and mounted stays out of the
+object at the fit's frames (``REST_CLEARANCE``), else "zero".
 
 Conventions: metres, degrees for the reported rotation vector, column-vector 4x4 transforms.
 """
@@ -101,16 +102,13 @@ def fit_mount(scene, side: str, *, frames: tuple[int, int] | None = None, n_fram
     a, b = frames if frames is not None else (0, scene.T)
     ks = tuple(sorted({int(round(v)) for v in np.linspace(a, b - 1, min(n_frames, b - a))}))
     ctx = _context(scene, track, ks, surface_samples)
-    unmoved = float(_score(ctx, np.zeros((1, 6)), REACH_ENOUGH)[0])
-    best, best_s = np.zeros(6), unmoved
-    for c, _ in _rank(ctx):
-        s = float(_score(ctx, c[None], REACH_ENOUGH)[0])
-        if s > best_s:
-            best, best_s = c, s
-    rest = _rest(scene, track, best, ks)
-    return MountFit(side=side, mount=tuple(float(v) for v in best), rest=rest, score=best_s, score_unmoved=unmoved,
-                    reach=tuple(_reach(ctx, best[None])[0].tolist()),
-                    reach_unmoved=tuple(_reach(ctx, np.zeros((1, 6)))[0].tolist()), frames=ks)
+    cands = np.stack([np.zeros(6)] + [c for c, _ in _rank(ctx)])
+    scores = _score(ctx, cands, REACH_ENOUGH)
+    k = int(np.argmax(scores))                                  # the first of the best, the unmoved mount first
+    reach = _areas(ctx, cands[[k, 0]]).mean(1)                  # (2, F)
+    return MountFit(side=side, mount=tuple(float(v) for v in cands[k]), rest=_rest(scene, track, cands[k], ks, ctx.sdf),
+                    score=float(scores[k]), score_unmoved=float(scores[0]), reach=tuple(reach[0].tolist()),
+                    reach_unmoved=tuple(reach[1].tolist()), frames=ks)
 
 
 def _context(scene, track, ks: tuple, surface_samples: int) -> "_Ctx":
@@ -127,7 +125,7 @@ def _context(scene, track, ks: tuple, surface_samples: int) -> "_Ctx":
     return _Ctx(codes, pts, inward, _palm_points(hand), torch.linalg.inv(O) @ W, sdf, thumb_index(hand))
 
 
-def _rest(scene, track, mount: np.ndarray, ks: tuple) -> str:
+def _rest(scene, track, mount: np.ndarray, ks: tuple, sdf: SDFGrid) -> str:
     """"relaxed" when the hand at its relaxed rest pose, so mounted, stays out of the object at the frames ``ks``
     (no surface sample deeper than ``REST_CLEARANCE``), else "zero"; a sidecar's ``[rest] pose`` wins."""
     named = load_sidecar(track.model).get("rest", {}).get("pose") if track.model != "default" else None
@@ -140,7 +138,6 @@ def _rest(scene, track, mount: np.ndarray, ks: tuple) -> str:
     G = torch.linalg.inv(O)[:, None] @ T  # object <- link
     lk = hand.sample_link
     pts = torch.einsum("kpij,pj->kpi", G[:, lk, :3, :3], hand.sample_points.double()) + G[:, lk, :3, 3]
-    sdf = SDFGrid.from_mesh(scene.object.mesh, 0.003, progress=False, dtype=torch.float64)
     depth = float((-sdf.query(pts)).max())
     return "relaxed" if depth <= REST_CLEARANCE else "zero"
 
@@ -220,20 +217,18 @@ def _transforms(cands: np.ndarray) -> torch.Tensor:
     return torch.as_tensor(np.stack([mount_transform(c) for c in cands]))
 
 
-def _reach(ctx: _Ctx, cands: np.ndarray) -> torch.Tensor:
-    """(C, F) mean fraction of surface samples inside each finger's workspace for candidate mounts (C, 6)."""
+def _areas(ctx: _Ctx, cands: np.ndarray) -> torch.Tensor:
+    """(C, K, F): per candidate mount (C, 6) and frame, the fraction of surface samples each finger's pad reaches."""
     M_inv = torch.linalg.inv(_transforms(cands))  # model hand frame <- track hand frame
     local = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.pts) + M_inv[:, None, None, :3, 3]
     inward = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.inward)
-    return torch.stack([_pad_reach(local, inward, c).double().mean((1, 2)) for c in ctx.codes], 1)
+    return torch.stack([_pad_reach(local, inward, c).double().mean(2) for c in ctx.codes], -1)
 
 
 def _score(ctx: _Ctx, cands: np.ndarray, cap: float | None = None) -> np.ndarray:
+    """The score of the module docstring per candidate mount (C, 6), reach capped at ``cap`` (None: uncapped)."""
     M = _transforms(cands)
-    M_inv = torch.linalg.inv(M)
-    local = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.pts) + M_inv[:, None, None, :3, 3]
-    inward = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.inward)
-    A = torch.stack([_pad_reach(local, inward, c).double().mean(2) for c in ctx.codes], -1)  # (C, K, F)
+    A = _areas(ctx, cands)  # (C, K, F)
     th = ctx.thumb if ctx.thumb is not None else int(A.mean((0, 1)).argmax())
     others = torch.cat([A[..., :th], A[..., th + 1:]], -1)
     second = others.sort(-1, descending=True).values[..., min(1, others.shape[-1] - 1)]
