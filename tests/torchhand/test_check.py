@@ -3,8 +3,9 @@
 One real ``torchhand synthesize box-turn`` result (shared with the render tests) is written once per session; the checker must pass it and flag
 each defect planted in a copy of it (a finger under the table, a hand in the object, a force outside its cone, a
 wrong object mass, a joint jump, a duplicated solution). Its numbers are compared with MuJoCo's capsule distances
-and with trimesh on the hand's surface samples for one frame; bad input, --json, partial runs, and the import
-boundary (torchhand.check never imports torchhand.synthesis) are tested too.
+and with trimesh on the hand's surface samples for one frame; bad input, --json, the limits (the checker's own,
+never stats.json's; --limit), partial runs, and the import boundary (torchhand.check never imports
+torchhand.synthesis) are tested too.
 """
 
 from __future__ import annotations
@@ -363,6 +364,82 @@ def test_limits_override_and_unknown_name(clean_dir, tmp_path):
     assert dict(LIMITS)["joint_acceleration_rad_s2"] is None
     with pytest.raises(TypeError):
         LIMITS["cone_violation"] = 1.0
+
+
+@pytest.fixture(scope="module")
+def fast_dir(tmp_path_factory) -> Path:
+    """A hand-written one-solution result (4 frames at 30 fps) whose flexion joints turn 1 rad over 3 frames, a joint
+    speed of 10 rad/s, and whose stats.json claims ``max_joint_speed`` 20."""
+    from tests.render.fixture_result import write_fixture_result
+
+    root = write_fixture_result(tmp_path_factory.mktemp("fast") / "r", "box-turn", frames=4, solutions=1, q_ramp=1.0)
+    stats = json.loads((root / "stats.json").read_text())
+    (root / "stats.json").write_text(json.dumps(dict(stats, max_joint_speed=20.0)))
+    return root
+
+
+def _limit_cell(table: str, header: str) -> str:
+    """The limit row's entry under a column of the printed table (columns are right-aligned)."""
+    lines = table.splitlines()
+    head = next(ln for ln in lines if ln.startswith("solution"))
+    row = next(ln for ln in lines if ln.startswith("limit "))
+    end = (head + " ").index(f" {header} ") + 1 + len(header)
+    return row[:end].split()[-1]
+
+
+def test_stats_max_joint_speed_sets_no_limit(fast_dir, tmp_path):
+    """stats.json's max_joint_speed (20) is the method's own bound: the checker keeps 8 rad/s, and does not even
+    read it (a malformed value is no error)."""
+    report = check_result(fast_dir)
+    fig = report.solutions[0].figures["joint_speed_rad_s"]
+    assert fig.value == pytest.approx(10.0, rel=1e-9) and fig.limit == 8.0 and not fig.ok
+    assert report.limits["joint_speed_rad_s"] == 8.0 == LIMITS["joint_speed_rad_s"]
+    assert "joint speed 10 rad/s" in report.failures[0] and "> 8 rad/s" in report.failures[0]
+    root = shutil.copytree(fast_dir, tmp_path / "r")
+    stats = json.loads((root / "stats.json").read_text())
+    (root / "stats.json").write_text(json.dumps(dict(stats, max_joint_speed="fast")))
+    assert check_result(root).limits["joint_speed_rad_s"] == 8.0
+
+
+def test_cli_limit_overrides_and_is_shown(fast_dir, tmp_path, capsys):
+    """--limit joint_speed_rad_s=12 passes the 10 rad/s motion; the limit row and the JSON report show 12 (and the
+    acceleration's default follows it: 2 x 12 x 30); the last --limit of a name counts."""
+    out = tmp_path / "report.json"
+    cli(["check", str(fast_dir), "--json", str(out), "--no-progress"])
+    text = capsys.readouterr().out
+    assert _limit_cell(text, "rad/s") == "8.0" and "10.0*" in text
+    assert json.loads(out.read_text())["solutions"][0]["figures"]["joint_speed_rad_s"]["ok"] is False
+    cli(["check", str(fast_dir), "--limit", "joint_speed_rad_s=12", "--json", str(out), "--no-progress"])
+    text = capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data["limits"]["joint_speed_rad_s"] == 12.0 and data["limits"]["joint_acceleration_rad_s2"] == 720.0
+    fig = data["solutions"][0]["figures"]["joint_speed_rad_s"]
+    assert fig["ok"] is True and fig["limit"] == 12.0 and fig["value"] == pytest.approx(10.0, rel=1e-9)
+    assert _limit_cell(text, "rad/s") == "12.0" and _limit_cell(text, "rad/s2") == "720"
+    assert "joint speed" not in "".join(data["failures"])
+    cli(["check", str(fast_dir), "--limit", "joint_speed_rad_s=12", "--limit", "joint_speed_rad_s=9",
+         "--limit", "joint_acceleration_rad_s2=default", "--limit", "distinct_deg=1", "--json", str(out),
+         "--no-progress"])
+    capsys.readouterr()
+    limits = json.loads(out.read_text())["limits"]
+    assert limits["joint_speed_rad_s"] == 9.0 and limits["joint_acceleration_rad_s2"] == 2 * 9.0 * 30
+    assert limits["distinct_deg"] == 1.0
+
+
+@pytest.mark.parametrize("value, said", [
+    ("joint_speed_rad_s", "--limit: expected NAME=VALUE, got 'joint_speed_rad_s'"),
+    ("speed=12", "--limit: unknown figure 'speed'"),
+    ("joint_speed_rad_s=fast", "--limit joint_speed_rad_s: expected a number >= 0 or 'default', got 'fast'"),
+    ("joint_speed_rad_s=-1", "--limit joint_speed_rad_s: expected a finite number >= 0, got '-1'"),
+    ("force_error=nan", "--limit force_error: expected a finite number >= 0, got 'nan'"),
+])
+def test_bad_limit_exits_2_and_writes_nothing(fast_dir, tmp_path, capsys, value, said):
+    out = tmp_path / "report.json"
+    assert cli(["check", str(fast_dir), "--limit", value, "--json", str(out), "--no-progress"]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("torchhand: error: ") and said in err[0], err
+    assert captured.out == "" and list(tmp_path.iterdir()) == []
 
 
 def test_cli_json_and_exit_codes(clean_dir, tmp_path, capsys):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 from types import MappingProxyType
 from typing import Callable
@@ -27,10 +26,12 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
     """Check every frame of every solution of a result directory with exact geometry.
 
     Reads only the directory (:func:`torchhand.load_result`): the scene, ``hand.xml``, ``stats.json`` and the
-    solution files; a partial run (``complete`` false) is checked as far as it was written.
+    solution files; a partial run (``complete`` false) is checked as far as it was written. The limits are
+    :data:`LIMITS` and the caller's ``limits``, nothing the result says (not ``stats.json``'s ``max_joint_speed``).
 
     directory: a result directory (``docs/result_format.md``)
-    limits: figure name -> limit overriding :data:`LIMITS` (and stats.json's ``max_joint_speed``), or None
+    limits: figure name -> limit overriding :data:`LIMITS` (units of the figure's name; None for
+        ``joint_acceleration_rad_s2``: twice the speed limit times fps), or None
     progress: called with one line after each solution, or None
     returns: a :class:`CheckReport`
     Raises the loader's MissingFileError / FileFormatError / ShapeError for a missing or malformed directory or
@@ -39,8 +40,7 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
     result = load_result(directory)
     scene = result.scene
     obj = object_mesh(scene.object.mesh, scene.object.mass)
-    speed = _stats_speed(result)
-    report_limits = resolve_limits(limits, max_joint_speed=speed, fps=scene.fps)
+    report_limits = resolve_limits(limits, fps=scene.fps)
     notes = []
     for side, model in result.hand_models.items():
         odd = capsule_notes(model, side)
@@ -57,7 +57,7 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
     n = len(result.solution_files)
     for i in range(n):
         sol = result.solution(i)
-        lim = resolve_limits(limits, max_joint_speed=speed, fps=sol.fps)
+        lim = resolve_limits(limits, fps=sol.fps)
         # rollouts of physical variants (a solution carrying its own mass: resynthesis of one interaction with other
         # masses, frictions or compliance scales) are different experiments, not alternative answers: no
         # duplicate test among them
@@ -70,16 +70,6 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
             progress(f"checked {check.name} ({i + 1}/{n}): {'ok' if check.passed else 'FAILS'}")
     return CheckReport(path=str(Path(result.path)), scene=scene.name, complete=result.complete,
                        solutions=tuple(checks), limits=MappingProxyType(report_limits), notes=tuple(notes))
-
-
-def _stats_speed(result: Result):
-    v = result.stats.get("max_joint_speed")
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise FileFormatError(f"{result.path / 'stats.json'}: max_joint_speed: expected a positive number of "
-                              f"rad/s, got {v!r}")
-    return float(v)
 
 
 def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,

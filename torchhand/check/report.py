@@ -69,8 +69,8 @@ LIMITS = MappingProxyType({
 * ``force_error``: ``|sum f + m g - m a|`` over ``m |g|``; ``torque_error``: ``|sum (p - c) x f - (I alpha +
   omega x I omega)|`` over ``m |g|`` times the object's largest extent.
 * ``joint_limit_rad``: how far a joint is beyond hand.xml's limits, radians.
-* ``joint_speed_rad_s``: largest ``|dq/dt|`` between consecutive frames, rad/s. The result's ``stats.json``
-  ``max_joint_speed`` replaces the default 8 rad/s when present.
+* ``joint_speed_rad_s``: largest ``|dq/dt|`` between consecutive frames, rad/s. Nothing the result says changes
+  it (``stats.json``'s ``max_joint_speed`` is the method's own bound, information only); the caller may.
 * ``joint_acceleration_rad_s2``: largest ``|d2q/dt2|`` (central second difference), rad/s^2. ``None`` means
   ``2 * joint_speed_rad_s * fps``: a full reversal from the speed limit to minus the speed limit within one frame.
 * ``distinct_deg``: mean over frames and joints (all hands) of ``|q_a - q_b|`` to the closest earlier solution,
@@ -78,16 +78,15 @@ LIMITS = MappingProxyType({
 """
 
 
-def resolve_limits(limits, *, max_joint_speed=None, fps: float) -> dict:
-    """The limits in force: :data:`LIMITS`, then ``max_joint_speed`` (stats.json), then the caller's ``limits``.
+def resolve_limits(limits, *, fps: float) -> dict:
+    """The limits in force: :data:`LIMITS`, then the caller's ``limits``; never anything read from a result.
 
     limits: mapping figure name -> number (or None for the acceleration's default), or None
     fps: frames per second of the solution (for the acceleration's default), > 0
+    returns: figure name -> limit in the figure's unit, every name of :data:`LIMITS`, none None
     Raises UnknownNameError for a name not in :data:`LIMITS`, InputValueError / InputTypeError for a bad value.
     """
     out = dict(LIMITS)
-    if max_joint_speed is not None:
-        out["joint_speed_rad_s"] = _positive(max_joint_speed, "stats.json max_joint_speed")
     if limits is not None:
         if not hasattr(limits, "items"):
             raise InputTypeError(f"limits: expected a mapping of figure name to number, got {type(limits).__name__}")

@@ -1,9 +1,15 @@
-"""``torchhand check RESULT_DIR [--json FILE]``: independent checks of a result directory, with exact geometry.
+"""``torchhand check RESULT_DIR [--json FILE] [--limit NAME=VALUE ...]``: independent checks of a result directory,
+with exact geometry.
 
 Every frame of every solution: hand-object, hand-table, hand-hand and finger-finger penetration of hand.xml's
 capsules; contact points on the object and on their links; every force in its friction cone (the scene's friction,
 the mesh's normals); the object's Newton-Euler balance with mass properties from its mesh; joint limits, speeds
 and accelerations; duplicate solutions (torchhand.check, docs/check.md).
+
+The limits are the checker's own (torchhand.check.LIMITS), whatever the result says about itself (stats.json's
+max_joint_speed is information only); --limit NAME=VALUE replaces one, in the units of its name, e.g.
+--limit joint_speed_rad_s=12 (rad/s); `default` restores LIMITS' value (joint_acceleration_rad_s2: twice the speed
+limit times fps). The table's limit row and the JSON report's "limits" show the limits in force.
 
 Prints one row per solution with its worst figures (a * marks a failing one), a verdict line, and one line per
 failing solution naming its failing figures. Exit code 0 when every solution passes, 1 when any fails (or there
@@ -14,12 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-from ..errors import MissingFileError
+from ..errors import InputValueError, MissingFileError, UnknownNameError
 from ._common import add_threads_argument, apply_threads
 
 _COLUMNS = (  # figure, header, scale, format
@@ -44,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("result", metavar="RESULT_DIR", help="a result directory (e.g. of `torchhand synthesize`)")
     p.add_argument("--json", metavar="FILE", help="also write the whole report as JSON (atomically)")
+    p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
+                   help="replace the checker's limit of figure NAME (torchhand.check.LIMITS) by VALUE, a number >= 0 "
+                        "in the units of the name, or `default`; repeatable (the last of one name counts)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")
     add_threads_argument(p)
     p.set_defaults(func=run)
@@ -53,6 +63,7 @@ def run(args) -> int:
     apply_threads(args.threads)
     from torchhand.check import check_result
 
+    limits = parse_limits(args.limit)
     json_path = None
     if args.json:
         json_path = Path(args.json)
@@ -60,7 +71,7 @@ def run(args) -> int:
         if not folder.is_dir():
             raise MissingFileError(f"--json: folder {folder} does not exist")
     progress = None if args.no_progress else (lambda line: print(line, file=sys.stderr, flush=True))
-    report = check_result(args.result, progress=progress)
+    report = check_result(args.result, limits=limits, progress=progress)
     if json_path is not None:
         _write_json(json_path, report.to_dict())
     print(format_table(report))
@@ -78,6 +89,36 @@ def run(args) -> int:
     if json_path is not None:
         print(f"wrote {json_path}")
     return 0 if report.passed else 1
+
+
+def parse_limits(items) -> dict:
+    """``--limit`` values (``NAME=VALUE`` strings) as a ``check_result`` limits mapping: figure name -> float, or
+    -> :data:`~torchhand.check.LIMITS`' value for ``default`` (None for ``joint_acceleration_rad_s2``).
+
+    Raises InputValueError for a missing ``=``, a value that is not a finite number >= 0 nor ``default``, and
+    UnknownNameError for a name that is not a figure of LIMITS.
+    """
+    from torchhand.check import LIMITS
+
+    out: dict = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        name, text = name.strip(), text.strip()
+        if not eq or not name:
+            raise InputValueError(f"--limit: expected NAME=VALUE, got {item!r}")
+        if name not in LIMITS:
+            raise UnknownNameError(f"--limit: unknown figure {name!r}; known: {', '.join(LIMITS)}")
+        if text.lower() == "default":
+            out[name] = LIMITS[name]
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputValueError(f"--limit {name}: expected a number >= 0 or 'default', got {text!r}") from None
+        if not math.isfinite(value) or value < 0:
+            raise InputValueError(f"--limit {name}: expected a finite number >= 0, got {text!r}")
+        out[name] = value
+    return out
 
 
 def format_table(report) -> str:
