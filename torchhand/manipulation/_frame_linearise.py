@@ -25,6 +25,7 @@ class FrameSetup:
     the non-penetration floors, filled by the frame's first linearisation and kept for the others."""
 
     H: object
+    inertia: object
     Jp_const: object
     N: object
     R_prev: object
@@ -153,6 +154,9 @@ def _objective(f: FrameSetup, Rl, h, q, root, s, ts):
         Jr = np.zeros((N, nv))
         Jr[:, :N] = du_dx
         Jr[:, N:] = np.einsum("hnc,hc->nh", du_dp, np.einsum("hij,hj->hi", Rl, seg)) * movable[None]
+        if f.inertia is not None:                          # Eq. 5's M q_ddot + C, linearised at the frame's start
+            r = r + f.inertia.residual(q, root)
+            Jr[:, :N] += f.inertia.m_dt2
     elif st.objective == "torque":
         Qb, Rb, Hb = _pose_batch(root, q, h, 1e-7, False)
         Hs = np.repeat(h[None], H, 0)
@@ -163,6 +167,9 @@ def _objective(f: FrameSetup, Rl, h, q, root, s, ts):
         r = ub[0] - ctx.u_bar
         Jr = ((ub[1:] - ub[0]) / 1e-7).T
         Jr[:, N:] *= movable[None]
+        if f.inertia is not None:
+            r = r + f.inertia.residual(q, root)
+            Jr[:, :N] += f.inertia.m_dt2
     else:
         r, Jr = np.zeros(0), np.zeros((0, nv))
     rv = rotvec(root[:3, :3] @ R_prev.T)

@@ -96,7 +96,8 @@ def stats_dict(result: ManipulationResult, unsuitable: GraspUnsuitable | None = 
             "frames_per_second": fps_run, "timings_s": r.timings, "added_contacts": r.num_added,
             "deferred_contacts": r.deferred,
             "max_joint_speed": s.synth.joint_speed, "sqp_iterations": r.iterations.tolist(),
-            "sqp_converged": r.converged.tolist(), "reproject_status": r.reproject_status.tolist(),
+            "sqp_converged": r.converged.tolist(), "frames_converged": int(np.sum(r.converged)),
+            "dynamics": "full", "objective_dynamics": s.synth.dynamics, "reproject_status": r.reproject_status.tolist(),
             "settings": {"plan": dataclasses.asdict(s.plan), "synth": dataclasses.asdict(s.synth)},
             "mass": r.mass, "friction": r.friction, "threads": torch.get_num_threads(),
             "numerics": numerics_record(), **extra}

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._frame_dynamics import inertial_torques
 from ._plan_contacts import _Contacts
 from ._plan_records import PlanSettings
 from .grasp import Grasp
@@ -46,7 +47,8 @@ class ManipulationResult:
 
     scene: the input scene; grasp: the (snapped) grasp; hand: the HandModel (float64)
     q: joint angles, (T, D), rad; root: wrist poses T_world_hand, (T, 4, 4)
-    torque: u^k, (T, 6 + D): torque about the root origin (world, N m), force (world, N), joint torques (N m)
+    torque: u^k = M q_ddot + C + n + sum J^T f (Eq. 5 in full; rates by central differences of the frames), (T, 6 + D):
+        torque about the root origin (world, N m), force (world, N), joint torques (N m)
     torque_rest: u_bar, (6 + D,)
     contact_link: (K,) link index; contact_mask: (T, K) active (carrying force)
     contact_hand_local: h, (T, K, 3), link frame; contact_object_local: p, (T, K, 3), object frame
@@ -161,6 +163,7 @@ def _collect(scene, grasps, ctxs, settings, run, rows: list[_FrameRow], u_bar, t
         for t, r in enumerate(rows):
             q[t], root[t] = r.frames[j]
             torque[t] = r.u[j]
+        torque = torque + inertial_torques(ctx.hand, q, root, scene.fps)   # Eq. 5's M q_ddot + C, written frames
         per_hand.append(HandMotion(side=g.side, hand=ctx.hand, grasp=g, q=q, root=root, torque=torque,
                                    torque_rest=u_bar[j]))
     for t, r in enumerate(rows):

@@ -72,12 +72,13 @@ class _SynthFrame:
 
 
 def _synth_frame(run, ctxs, k: int, f_k: np.ndarray, prev: _Hands, pose_prev: np.ndarray, H_before: int,
-                 added_k: dict, ss):
+                 added_k: dict, ss, older: list | None = None):
     """Synthesize frame k with the forces F_k just planned (Sec. 5), each hand with its own contacts: the contacts'
     states at k (active, closing, sliding) and the receding slack of the added contacts that are not active yet,
     ``sigma_j(k) = d_j (t_e - k) / (t_e - t_a)`` (t_a the frame that added it, t_e its first active frame, d_j its
     gap at t_a). Records (t_a, d_j) of contacts added since frame k-1 in ``added_k``. The hands share only the
-    object and its forces (planned together); their syntheses are separate.
+    object and its forces (planned together); their syntheses are separate. ``older``: (q, root) per hand at frame
+    k-2 for the inertial term (None: at rest).
     Returns a :class:`_SynthFrame`."""
     c, geo, pose = run.c, run.geo, run.geo.pose
     lam_k = run.out[-1][1]
@@ -106,8 +107,9 @@ def _synth_frame(run, ctxs, k: int, f_k: np.ndarray, prev: _Hands, pose_prev: np
     normals_prev = np.stack(c.n)
     n_w = normals_prev @ pose[k][:3, :3].T
     t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
-    slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu, ss.boundary))
-                      for i in range(H)])
+    slide = np.array([ss.sliding and ((i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu,
+                                                                                  ss.boundary)))
+                      for i in range(H)], dtype=bool)
     rel = pose[k] @ np.linalg.inv(pose_prev)
     out_frames, h_new, gap = [], h_prev.copy(), np.zeros(H)
     objective, iterations, converged, violation = 0.0, 0, True, 0.0
@@ -120,7 +122,9 @@ def _synth_frame(run, ctxs, k: int, f_k: np.ndarray, prev: _Hands, pose_prev: np
         res = synthesize_frame(ctx, before, guess, links[sel] - geo.link_offset[j], f_k[:H][sel], active[sel],
                                pose[k], pose_prev, normals_prev[sel], slide[sel],
                                {local[i]: v for i, v in approach.items() if i in local}, closing[sel],
-                               settle=k == 0)
+                               settle=k == 0,
+                               before=None if older is None else HandFrame(q=older[j][0], root=older[j][1], h=None,
+                                                                            p=None))
         out_frames.append((res.frame.q, res.frame.root))
         h_new[sel] = res.frame.h
         if res.gap is not None:

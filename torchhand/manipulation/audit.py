@@ -2,10 +2,13 @@
 read from the result directory only: the stored torques against MuJoCo's, the slip of static contacts and the
 direction of sliding ones (Eq. 7).
 
-* :func:`mujoco_torque_error`: the result's ``hand.xml`` in MuJoCo at every frame's root pose and joint angles, at
-  rest: the generalised forces that hold the hand still against gravity and the object's reaction are
-  ``qfrc_bias + J^T f`` (``mj_applyFT`` of the force f each contact applies to the object, at its hand point);
-  mapped to torchhand's order (torque about the root origin, force, joint torques) and compared with ``torque``.
+* :func:`mujoco_torque_error`: the result's ``hand.xml`` in MuJoCo at every frame's root pose and joint angles:
+  the generalised forces that move the hand as written against gravity and the object's reaction are
+  ``qfrc_inverse + J^T f`` (``mj_inverse`` with the frames' velocities and accelerations, from MuJoCo's own
+  ``mj_differentiatePos`` of consecutive frames, central at each frame and one-sided at the ends; zero for a result
+  whose stats.json says ``dynamics`` is not ``"full"``; ``mj_applyFT`` of the force f each contact applies to the
+  object, at its hand point); mapped to torchhand's order (torque about the root origin, force, joint torques) and
+  compared with ``torque``.
 * :func:`contact_motion`: the material points of every hand contact, placed by forward kinematics of the stored
   motion (the hand point, ``contact_hand_local``) and by the stored object pose (the object point,
   ``contact_object_local``), differenced over each frame: their tangential relative velocity (where the contact
@@ -18,6 +21,7 @@ Needs ``mujoco`` for the torques (a test extra).
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,11 +58,17 @@ def mujoco_torque_error(result_dir) -> tuple[float, float]:
     d = Path(result_dir)
     with np.load(d / "solutions" / "sol_000.npz") as f:
         z = {k: f[k] for k in f.files}
+    stats = json.loads((d / "stats.json").read_text()) if (d / "stats.json").exists() else {}
+    moving = stats.get("dynamics", "quasi-static") == "full"
+    fps = float(stats.get("fps", 30.0))
     link_names = [str(n) for n in z["contact_link_name"]]
     worst, scale = 0.0, 0.0
     for _, xml, q_all, roots, torque, names, prefix in _sides(d, z):
         m = mujoco.MjModel.from_xml_path(str(xml))
         m.dof_armature[:] = 0
+        m.dof_damping[:] = 0
+        m.jnt_stiffness[:] = 0
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
         jid = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
         if m.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE or min(jid) <= 0:
             raise ValueError(f"{xml}: expected a free root joint and the result's joints")
@@ -66,13 +76,16 @@ def mujoco_torque_error(result_dir) -> tuple[float, float]:
         data = mujoco.MjData(m)
         scale = max(scale, float(np.abs(torque).max()))
         D = len(names)
+        qpos = np.tile(m.qpos0, (q_all.shape[0], 1))
+        qpos[:, :3] = roots[:, :3, 3]
+        qpos[:, 3:7] = [_quat_wxyz(r[:3, :3]) for r in roots]
+        qpos[:, qadr] = q_all
+        qvel, qacc = _mujoco_rates(m, qpos, roots, fps) if moving else (np.zeros((len(qpos), m.nv)),) * 2
         for t in range(q_all.shape[0]):
             root = roots[t]
-            data.qpos[:] = m.qpos0
-            data.qpos[:3], data.qpos[3:7], data.qpos[qadr] = root[:3, 3], _quat_wxyz(root[:3, :3]), q_all[t]
-            data.qvel[:] = 0
-            mujoco.mj_forward(m, data)
-            qfrc = data.qfrc_bias.copy()
+            data.qpos[:], data.qvel[:], data.qacc[:] = qpos[t], qvel[t], qacc[t]
+            mujoco.mj_inverse(m, data)
+            qfrc = data.qfrc_inverse.copy()
             for k in np.flatnonzero(z["contact_mask"][t]):
                 name = link_names[z["contact_link"][t, k]]
                 if not name.startswith(prefix):
@@ -86,6 +99,31 @@ def mujoco_torque_error(result_dir) -> tuple[float, float]:
             S[dadr, 6 + np.arange(D)] = 1
             worst = max(worst, float(np.abs(S.T @ qfrc - torque[t]).max()))
     return worst, scale
+
+
+def _mujoco_rates(m, qpos: np.ndarray, roots: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """qvel and qacc (T, nv) of MuJoCo's model ``m`` along the frames ``qpos`` (T, nq): half-step velocities by
+    ``mj_differentiatePos`` (a free joint's angular part in the body's axes at the earlier frame, turned to world
+    axes), averaged at each frame and differenced for the acceleration, one-sided at the ends (the stored torques'
+    rule, docs/manipulation.md); the free joint's angular rates back in the body's axes at each frame."""
+    import mujoco
+
+    T, dt = len(qpos), 1.0 / fps
+    half = np.zeros((max(T - 1, 0), m.nv))
+    for t in range(T - 1):
+        mujoco.mj_differentiatePos(m, half[t], dt, qpos[t], qpos[t + 1])
+        half[t, 3:6] = roots[t][:3, :3] @ half[t, 3:6]              # world angular velocity
+    vel, acc = np.zeros((T, m.nv)), np.zeros((T, m.nv))
+    if T >= 2:
+        vel[0], vel[-1] = half[0], half[-1]
+        vel[1:-1] = 0.5 * (half[:-1] + half[1:])
+    if T >= 3:
+        acc[1:-1] = (half[1:] - half[:-1]) / dt
+        acc[0], acc[-1] = acc[1], acc[-2]
+    for t in range(T):                                              # angular rates in the body's axes
+        vel[t, 3:6] = roots[t][:3, :3].T @ vel[t, 3:6]
+        acc[t, 3:6] = roots[t][:3, :3].T @ acc[t, 3:6]
+    return vel, acc
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ angles q, the free root's pose) and the contact points (h_i on the link, p_i on 
 hand needs to hold those forces stay close to the equilibrium torques u_bar of the grasp:
 
     argmin_{q, root, h}  |u(q, root, h) - u_bar|^2 + prox        (Eq. 8 with u eliminated by Eq. 5)
-    u = n(q) + sum_i J_i(q, h_i)^T f_i                           (Eq. 5 at rest: inertia off, q_dot = 0)
+    u = n(q) + sum_i J_i(q, h_i)^T f_i                           (Eq. 5 quasi-static; dynamics="full" adds
+                                                                  M(q) q_ddot + C(q, q_dot))
 
 ``n(q)`` is :meth:`~torchhand.hand.HandModel.gravity_torques` (the sign of MuJoCo's ``qfrc_bias``), ``J_i`` the
 point Jacobian with the root twist first (:func:`~torchhand.hand.dynamics.point_jacobian`, ``wrt_root=True``) and
@@ -34,27 +35,46 @@ Constraints (linearised at every iteration)
       from t_e on they obey Eq. 6 (Eq. 7 from the frame after). The caller checks that such a contact touches at
       t_e (``FrameResult.gap``) before its force is kept (:mod:`.manipulate`).
 
-Solver (Sec. 5.3 says SQP): Gauss-Newton on ``|r(x)|^2`` with ``r = u - u_bar`` over x = (root twist, q, s): the
+Solver (Sec. 5.3 says SQP): Gauss-Newton on ``|r|^2`` with ``r = u - u_bar`` over x = (root twist, q, s): the
 Jacobian of r analytic (``dJ^T f / dq`` from the joint axes, :mod:`.torque_derivs`, with the point Jacobians and the
 link poses from the same single kinematics pass), or, with ``SynthSettings(derivatives="finite")``, by batched
 forward differences of :func:`torques` (one batched call per iteration); each step is a dense convex QP
 (Gauss-Newton Hessian, the proximal terms and Levenberg-Marquardt damping) solved by a Goldfarb-Idnani dual
 active-set method (:func:`dense_qp`); a step that raises the l1 merit ``|r|^2 + prox + w |violation|_1`` is rejected
 and the damping raised; an infeasible step goes to elastic mode (l1 slacks on the equalities and on the
-receding-slack rows of approaching contacts); after ``max_iters``
-iterations, least-norm restoration steps onto the constraints.
+receding-slack rows of approaching contacts).
+
+Convergence, within a work budget of Gauss-Newton iterations (``max_iters``, then ``POLISH_STEPS`` more):
+    * a trial step that raises the merit by breaking the curved constraints gets a second-order correction (one
+      least-norm step back onto them, :func:`_trial`); without it the constraints' curvature rejected nearly every
+      useful step and the iterates crept;
+    * the merit is stationary when an accepted step changes it by at most ``merit_tol`` (1e-9) of it or moves no
+      variable by more than ``step_tol`` of its step scale, or when no step however short lowers it;
+    * then undamped steps polish the point without comparing merits (merit differences are rounding there), each
+      shorter than 0.95 times the one before; the frame has **converged** when a step moves no variable by more
+      than ``POLISH_TOL`` (1e-9) of its step scale and the constraints hold within ``VIOL_TOL`` (1e-9 m).
+    A frame that does not converge keeps its last point and says so (``FrameResult.converged``, stats.json
+    ``sqp_converged``). After the iterations, least-norm restoration steps onto the constraints.
 
 Deviations from the paper (documented choices)
     * Proximal terms ``eps |q - q^{k-1}|^2`` (and on the root and on s): fingers that carry no force have tiny gravity
       torques and are otherwise undetermined, and along a line contact (a capsule lying on a face) the contact point
-      could drift without any motion of the hand.
+      could drift without any motion of the hand. They are 0.05 N m per rad and 0.5 N per m of the root's
+      translation: with 1e-3, converged frames moved the fingers by up to 0.7 rad to shift the hand's weight under
+      the wrist (the wrist's six rows dominate |u - u_bar|^2), along directions so weakly determined that a 1e-9 m
+      change of the object's path changed the motion by 0.7 rad.
+    * Hand contacts are static (``sliding=False``, the default): with Liu's rule (a planned force on the cone
+      boundary may slide) converged frames slid the contacts to where the grasp could not hold the object.
     * The forces are held at their planned world values during the iterations (B_i(p_i) is not re-linearised); the
       caller re-projects them onto the final contact positions (addition (c), :mod:`.manipulate`).
     * ``settle`` (the first frame): Eq. 7 as weighted residual rows, so the grasp's contacts can settle onto the
       capsule model.
     * The ablation ``objective="pose"`` minimises ``|q - q^{k-1}|^2`` (root twist included) instead of the torque
       deviation (Sec. 6 "without the objective").
-    * Inertia (``M(q) q_ddot``) is off (Liu: "relatively small"); the root is a free 6-DOF body, not an arm.
+    * The objective's torques are quasi-static by default (``dynamics="quasi-static"``; Liu calls the inertial
+      term "relatively small"); with ``dynamics="full"`` Eq. 5's inertial term enters the objective linearised at
+      the frame's start, by backward differences (:mod:`._frame_dynamics`). The stored torques are Eq. 5 in full.
+      The root is a free 6-DOF body, not an arm.
 
 Conventions: metres, seconds, radians, newtons; column-vector 4x4 transforms; contact normals point into the
 object; f is the force of the hand on the object.
@@ -70,6 +90,7 @@ import numpy as np
 import torch
 
 from ..errors import InputValueError
+from ._frame_dynamics import frame_inertia
 from ._frame_geometry import _axis_param, _tangents, exp_rot, rotvec
 from ._frame_linearise import FrameSetup, linearise
 from ._frame_qp import _solve, dense_qp  # noqa: F401  (_solve: the tests reach it here)
@@ -81,6 +102,24 @@ from .torque_derivs import (
     tree_state,
 )
 
+VIOL_TOL = 1e-9
+"""A frame's constraints hold when their largest violation is at most this (metres; radians for angles)."""
+
+LM_MAX = 1e3
+"""Damping beyond which no shorter step is tried: the merit is stationary at the current point."""
+
+POLISH_STEPS = 40
+"""Work budget of the polishing steps after the merit is stationary, Gauss-Newton iterations."""
+
+POLISH_TOL = 1e-9
+"""A frame has converged when a polishing step moves every variable by at most this fraction of its step scale."""
+
+POLISH_RATE = 0.95
+"""Each polishing step must be shorter than this fraction of the one before (a contraction)."""
+
+POLISH_MAX = 0.1
+"""The first polishing step may be at most this fraction of the step scale."""
+
 __all__ = ["SynthSettings", "HandFrame", "FrameResult", "SynthContext", "synthesize_frame", "torques", "dense_qp",
            "rotvec", "exp_rot"]
 
@@ -90,7 +129,7 @@ class SynthSettings:
     """Settings of :func:`synthesize_frame`.
 
     objective: "torque" (Eq. 8, |u - u_bar|^2) or "pose" (the ablation: |q - q^{k-1}|^2)
-    joint_speed: |dq/dt| bound, rad/s (0.3 rad per frame at 30 fps)
+    joint_speed: |dq/dt| bound, rad/s (the checker's 8 rad/s; 0.267 rad per frame at 30 fps)
     root_speed: root translation speed bound, m/s; root_rate: root angular speed bound, rad/s
     prox_q: weight of (q - q^{k-1}) and of the root rotation in the residual, N m per rad
     prox_x: weight of the root translation in the residual, N m per metre
@@ -99,38 +138,56 @@ class SynthSettings:
         so its drift is damped
     h_step: bound on that motion per frame, metres (ten times more at the settling first frame)
     margin: allowed penetration of capsules into the object and the table, metres
-    max_iters: Gauss-Newton iterations per frame (three times as many at the settling first frame); step_tol: stop when the largest step is below it (rad, m)
+    max_iters: the work budget, Gauss-Newton iterations per frame (three times as many at the settling first frame)
+    merit_tol: converged when an accepted step changes the l1 merit by at most this fraction of it
+    step_tol: converged when an accepted step moves every variable by at most this fraction of its step scale
+        (0.05 rad per joint, 0.02 rad and 5 mm of the root, 2 mm along a contact's capsule axis)
     boundary: a planned force with |f.t1| + |f.t2| >= boundary mu f.n lies on the cone boundary (may slide)
     slip_speed: a contact whose material points move apart tangentially faster than this slides, m/s
     voxel: SDF grid spacing of the object, metres
     derivatives: "analytic" (the Jacobian of the torques and the point Jacobians from one kinematics pass,
         :mod:`.torque_derivs`) or "finite" (batched forward differences of :func:`torques`, step 1e-7; kept for
         comparison)
+    dynamics: the torques of the objective: "quasi-static" (u = n(q) + sum J^T f, the default) or "full" (Eq. 5's
+        M(q) q_ddot + C(q, q_dot) added by backward differences, :mod:`._frame_dynamics`; a finger that carries no
+        force then swings under the constant torque u_bar, and did so at the speed limit, 0.27 rad a frame, on
+        liu-lift). The stored torques are Eq. 5 in full either way
+    sliding: hand contacts may slide (Liu's rule: a planned force on the cone boundary, ``boundary``, or material
+        points that moved apart faster than ``slip_speed``); off by default, every hand contact static (Eq. 7's
+        no-slip rows): with converged frames, sliding contacts slid to where the grasp could no longer hold the
+        object (docs/manipulation.md, "Converged frames"). The table's contacts slide either way
     """
 
     objective: str = "torque"
-    joint_speed: float = 9.0
+    joint_speed: float = 8.0
     root_speed: float = 1.0
     root_rate: float = 6.0
-    prox_q: float = 1e-3
-    prox_x: float = 1e-2
-    prox_h: float = 3.0
+    prox_q: float = 0.05
+    prox_x: float = 0.5
+    prox_h: float = 30.0
     h_step: float = 1e-3
     margin: float = 5e-4
-    max_iters: int = 3
-    step_tol: float = 1e-7
+    max_iters: int = 30
+    merit_tol: float = 1e-9
+    step_tol: float = 1e-6
     boundary: float = 0.97
     slip_speed: float = 1e-3
     voxel: float = 0.001
     derivatives: str = "analytic"
+    dynamics: str = "quasi-static"
+    sliding: bool = False
 
     def __post_init__(self):
         if self.objective not in ("torque", "pose"):
             raise InputValueError(f"objective: expected 'torque' or 'pose', got {self.objective!r}")
+        if not isinstance(self.sliding, bool):
+            raise InputValueError(f"sliding: expected True or False, got {self.sliding!r}")
+        if self.dynamics not in ("full", "quasi-static"):
+            raise InputValueError(f"dynamics: expected 'full' or 'quasi-static', got {self.dynamics!r}")
         if self.derivatives not in ("analytic", "finite"):
             raise InputValueError(f"derivatives: expected 'analytic' or 'finite', got {self.derivatives!r}")
         for name in ("joint_speed", "root_speed", "root_rate", "prox_q", "prox_x", "prox_h", "h_step", "voxel",
-                     "slip_speed"):
+                     "slip_speed", "merit_tol", "step_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputValueError(f"{name}: expected a positive number, got {v!r}")
@@ -267,7 +324,8 @@ def _apply_step(x, dx, N):
 
 def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links: np.ndarray, forces: np.ndarray,
                      active: np.ndarray, pose: np.ndarray, pose_prev: np.ndarray, normals_prev: np.ndarray,
-                     slide: np.ndarray, approach: dict, closing: np.ndarray, settle: bool = False) -> FrameResult:
+                     slide: np.ndarray, approach: dict, closing: np.ndarray, settle: bool = False,
+                     before: HandFrame | None = None) -> FrameResult:
     """Eq. 8 at one frame (module docstring). returns: :class:`FrameResult` (its ``frame.p`` is None: the caller
     projects E(q) h onto the object).
 
@@ -282,6 +340,8 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     closing: (H,) bool, added contacts active from this frame on (no Eq. 7 rows yet)
     settle: Eq. 7 as weighted residual rows (``SETTLE_WEIGHT``) instead of constraints: the first frame, where the
         grasp's contacts settle onto the capsule model and a rigid no-slip grasp could not close their gaps
+    before: the hand at frame k-2 (q, root) for the inertial term's backward differences (None: ``prev``, the hand
+        at rest before k-1)
 
     The hand point of a contact on a link with a capsule is parametrised by its position s in [0, 1] along the
     capsule's axis: ``h = c(s) - r n``, c(s) the axis point and n the object's outward normal there (the capsule
@@ -330,7 +390,10 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
 
     floor: dict = {}                                     # non-penetration floors, fixed at the frame's start
 
-    setup = FrameSetup(H=H, Jp_const=Jp_const, N=N, R_prev=R_prev, Rs=Rs, active=active, analytic=analytic,
+    inertia = None
+    if st.dynamics == "full" and st.objective == "torque":
+        inertia = frame_inertia(hand, start, prev, before if before is not None else prev, dt)
+    setup = FrameSetup(H=H, inertia=inertia, Jp_const=Jp_const, N=N, R_prev=R_prev, Rs=Rs, active=active, analytic=analytic,
                        approach=approach, ca=ca, closing=closing, cr=cr, ctx=ctx, d0=d0, dt=dt, f_use=f_use,
                        floor=floor, hand=hand, links=links, movable=movable, nv=nv, os_=os_, prev=prev,
                        s_prev=s_prev, s_step=s_step, seg=seg, seg_len=seg_len, settle=settle, slide_dir=slide_dir,
@@ -339,32 +402,84 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     damp = np.diag(1.0 / base ** 2)
 
     x = (start.q.copy(), start.root.copy(), _axis_param(ca, seg, start.h))
-    L = linearise(setup, *x)
-    lm, it, converged = 1e-5, 0, False
     max_iters = st.max_iters * (3 if settle else 1)        # the first frame starts farther from feasibility
-    while it < max_iters:
-        it += 1
-        dx = _qp_step(L, lm, damp, base, nv, C_box)
-        xn = _apply_step(x, dx, N)
-        Ln = linearise(setup, *xn)
-        if Ln.merit > L.merit * (1 + 1e-12) + 1e-15:
-            lm *= 10.0                                     # backtrack: more damping, a shorter step
-            if lm > 1e3:
-                break
-            continue
-        x, L = xn, Ln
-        lm = max(lm / 3.0, 1e-9)
-        if np.abs(dx).max() <= st.step_tol:
-            converged = True
-            break
+    x, L, it, converged = _iterate(setup, x, linearise(setup, *x), max_iters,
+                                   lambda L_, lm, project=False: _qp_step(L_, lm, damp, base, nv, C_box, project),
+                                   base, N)
     for _ in range(4):                                    # restore the constraints (least-norm steps)
-        if L.viol <= 1e-9:
+        if L.viol <= VIOL_TOL:
             break
         x = _apply_step(x, _qp_step(L, 0.0, damp, base, nv, C_box, project=True), N)
         L = linearise(setup, *x)
     q, root, _ = x
     return FrameResult(frame=HandFrame(q=q, root=root, h=L.h, p=None), objective=L.objective, iterations=it,
-                       converged=converged, violation=L.viol, gap=L.gap)
+                       converged=converged and L.viol <= VIOL_TOL, violation=L.viol, gap=L.gap)
+
+
+def _trial(setup, x, dx, L, step, N):
+    """The point x + dx and its linearisation, with a second-order correction when the step raised the merit by
+    breaking the (curved) constraints it was linearised on: one least-norm step back onto them from x + dx, kept
+    when it lowers the merit (the Maratos effect: without it a Gauss-Newton step that improves the objective is
+    rejected for the second-order violation it brings, and the iterates creep)."""
+    xn = _apply_step(x, dx, N)
+    Ln = linearise(setup, *xn)
+    if Ln.merit > L.merit and Ln.viol > L.viol:
+        xc = _apply_step(xn, step(Ln, 0.0, project=True), N)
+        Lc = linearise(setup, *xc)
+        if Lc.merit < Ln.merit:
+            return xc, Lc
+    return xn, Ln
+
+
+def _iterate(setup, x, L, max_iters: int, step, base, N):
+    """Damped Gauss-Newton on the l1 merit until it is stationary (module docstring, "Convergence").
+
+    Returns (x, its linearisation, iterations, converged). A step is accepted when it does not raise the merit
+    (beyond rounding); after an accepted step the damping falls by 3, after a rejected one it rises by 10.
+    The merit is stationary when an accepted step changed it by at most ``merit_tol`` of it, or moved no variable
+    by more than ``step_tol`` of its step scale, or no step lowers it however short (the damping reached
+    ``LM_MAX``); then :func:`_polish` decides convergence. Not stationary within ``max_iters``: not converged. The
+    caller also requires the constraints to hold within ``VIOL_TOL``."""
+    st = setup.st
+    lm, it = 1e-5, 0
+    while it < max_iters:
+        it += 1
+        dx = step(L, lm)
+        xn, Ln = _trial(setup, x, dx, L, step, N)
+        if Ln.merit > L.merit * (1 + 1e-12) + 1e-15:
+            lm *= 10.0                                     # backtrack: more damping, a shorter step
+            if lm > LM_MAX:                                # no descent at any step length: stationary
+                return _polish(setup, x, L, it, max_iters + POLISH_STEPS, step, base, N)
+            continue
+        change = L.merit - Ln.merit
+        x, L = xn, Ln
+        lm = max(lm / 3.0, 1e-9)
+        if change <= st.merit_tol * (1.0 + L.merit) or np.abs(dx / base).max() <= st.step_tol:
+            return _polish(setup, x, L, it, max_iters + POLISH_STEPS, step, base, N)
+    return x, L, it, False
+
+
+def _polish(setup, x, L, it: int, budget: int, step, base, N):
+    """Undamped Gauss-Newton steps from a point where the merit is stationary, accepted without comparing merits
+    (at this point merit differences are rounding: they cannot place the iterate closer than about
+    sqrt(rounding / curvature), milliradians along weakly determined directions), as long as each step is shorter
+    than ``POLISH_RATE`` times the one before. Converged when a step is at most ``POLISH_TOL`` of the step scale;
+    a step that does not contract, or the budget running out, ends it unconverged at the last point.
+
+    Returns (x, its linearisation, iterations, converged)."""
+    size_before = POLISH_MAX
+    while it < budget:
+        dx = step(L, 1e-9)
+        size = float(np.abs(dx / base).max())
+        if size > POLISH_RATE * size_before:
+            return x, L, it, False
+        it += 1
+        x = _apply_step(x, dx, N)
+        L = linearise(setup, *x)
+        if size <= POLISH_TOL:
+            return x, L, it, True
+        size_before = size
+    return x, L, it, False
 
 
 _TREES: dict = {}
