@@ -4,18 +4,16 @@ found by topology, asserted per hand; MJCF ``<include>`` and an arm above the ha
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
+from tests.conftest import shared_path
 from torchhand.errors import FileFormatError, MissingFileError
 from torchhand.hand import HandModel
 from torchhand.hand._compile import compile_file
 from torchhand.hand.mount import thumb_index
-
-from tests.conftest import shared_path
+from torchhand.scene.builtin.ycb import arm_file as _arm_file
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -150,27 +148,6 @@ def test_grasp_from_qpos_on_an_arm_then_manipulate(tmp_path):
     assert main(["manipulate", "liu-shadow-lift", "--grasp", str(tmp_path / "g.npz"), "--out", str(tmp_path / "m"),
                  "--no-progress"]) == 0
     assert main(["check", str(tmp_path / "m")]) == 0
-
-
-def _arm_file(tmp_path: Path, hand_xml: Path, reach: float = 0.3) -> Path:
-    """A MJCF file of our own: three slides (+/- ``reach`` metres) and three hinges, then the shipped hand file
-    included."""
-    text = hand_xml.read_text()
-    # the included file's body goes inside our arm: include a copy whose worldbody is our arm's last body
-    inner = text.replace("<worldbody>", "<worldbody><body name='arm_base'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/>"
-                         "<joint name='arm_tx' type='slide' axis='1 0 0' range='-0.3 0.3'/>"
-                         "<body name='arm_l1'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/><joint name='arm_ty' type='slide' axis='0 1 0' range='-0.3 0.3'/>"
-                         "<body name='arm_l2'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/><joint name='arm_tz' type='slide' axis='0 0 1' range='-0.3 0.3'/>"
-                         "<body name='arm_l3'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/><joint name='arm_rx' axis='1 0 0' range='-3 3'/>"
-                         "<body name='arm_l4'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/><joint name='arm_ry' axis='0 1 0' range='-3 3'/>"
-                         "<body name='arm_l5'><inertial pos='0 0 0' mass='0.1' diaginertia='1e-4 1e-4 1e-4'/><joint name='arm_rz' axis='0 0 1' range='-3 3'/>", 1)
-    inner = inner.replace("</worldbody>", "</body></body></body></body></body></body></worldbody>", 1)
-    inner = inner.replace("range='-0.3 0.3'", f"range='{-reach} {reach}'")
-    inner = inner.replace('meshdir="assets"', f'meshdir="{hand_xml.parent / "assets"}"')
-    (tmp_path / "hand_on_arm.xml").write_text(inner)
-    (tmp_path / "scene.xml").write_text('<mujoco model="arm_scene"><compiler angle="radian"/>'
-                                        '<include file="hand_on_arm.xml"/></mujoco>')
-    return tmp_path / "scene.xml"
 
 
 def test_bad_files_are_one_line(tmp_path):

@@ -46,13 +46,16 @@ receding-slack rows of approaching contacts).
 
 Convergence, within a work budget of Gauss-Newton iterations (``max_iters``, then ``POLISH_STEPS`` more):
     * a trial step that raises the merit by breaking the curved constraints gets a second-order correction (one
-      least-norm step back onto them, :func:`_trial`); without it the constraints' curvature rejected nearly every
+      least-norm step back onto them, :func:`._frame_solve._trial`); without it the constraints' curvature rejected nearly every
       useful step and the iterates crept;
     * the merit is stationary when an accepted step changes it by at most ``merit_tol`` (1e-9) of it or moves no
       variable by more than ``step_tol`` of its step scale, or when no step however short lowers it;
+    * the frame has **converged** when its merit is stationary and the constraints hold within ``VIOL_TOL``
+      (1e-9 m);
     * then undamped steps polish the point without comparing merits (merit differences are rounding there), each
-      shorter than 0.95 times the one before; the frame has **converged** when a step moves no variable by more
-      than ``POLISH_TOL`` (1e-9) of its step scale and the constraints hold within ``VIOL_TOL`` (1e-9 m).
+      shorter than 0.95 times the one before, until a step moves no variable by more than ``POLISH_TOL`` (1e-9) of
+      its step scale; a polish that stops contracting keeps its point only if the merit stayed within
+      ``merit_tol``.
     A frame that does not converge keeps its last point and says so (``FrameResult.converged``, stats.json
     ``sqp_converged``). After the iterations, least-norm restoration steps onto the constraints.
 
@@ -93,6 +96,7 @@ from ..errors import InputValueError
 from ._frame_dynamics import frame_inertia
 from ._frame_geometry import _axis_param, _tangents, exp_rot, rotvec
 from ._frame_linearise import FrameSetup, linearise
+from ._frame_solve import VIOL_TOL, _apply_step, _iterate
 from ._frame_qp import _solve, dense_qp  # noqa: F401  (_solve: the tests reach it here)
 from ._frame_torques import (ELASTIC_WEIGHT, SETTLE_WEIGHT, TOUCH_WEIGHT,  # noqa: F401  (their home until moved)
                              _pose_batch, torques)
@@ -101,24 +105,6 @@ from .torque_derivs import (
     tree_order,
     tree_state,
 )
-
-VIOL_TOL = 1e-9
-"""A frame's constraints hold when their largest violation is at most this (metres; radians for angles)."""
-
-LM_MAX = 1e3
-"""Damping beyond which no shorter step is tried: the merit is stationary at the current point."""
-
-POLISH_STEPS = 40
-"""Work budget of the polishing steps after the merit is stationary, Gauss-Newton iterations."""
-
-POLISH_TOL = 1e-9
-"""A frame has converged when a polishing step moves every variable by at most this fraction of its step scale."""
-
-POLISH_RATE = 0.95
-"""Each polishing step must be shorter than this fraction of the one before (a contraction)."""
-
-POLISH_MAX = 0.1
-"""The first polishing step may be at most this fraction of the step scale."""
 
 __all__ = ["SynthSettings", "HandFrame", "FrameResult", "SynthContext", "synthesize_frame", "torques", "dense_qp",
            "rotvec", "exp_rot"]
@@ -313,15 +299,6 @@ def _qp_step(L, lm, damp, base, nv, C_box, project=False):
     return np.clip(dx, lo, hi)
 
 
-def _apply_step(x, dx, N):
-    """x = (q, root, s) moved by the step dx = (root twist, q, s) (N = 6 + D); s kept in [0, 1]."""
-    q, root, s = x
-    root = root.copy()
-    root[:3, :3] = exp_rot(dx[:3]) @ root[:3, :3]
-    root[:3, 3] = root[:3, 3] + dx[3:6]
-    return q + dx[6:N], root, np.clip(s + dx[N:], 0.0, 1.0)
-
-
 def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links: np.ndarray, forces: np.ndarray,
                      active: np.ndarray, pose: np.ndarray, pose_prev: np.ndarray, normals_prev: np.ndarray,
                      slide: np.ndarray, approach: dict, closing: np.ndarray, settle: bool = False,
@@ -414,72 +391,6 @@ def synthesize_frame(ctx: SynthContext, prev: HandFrame, start: HandFrame, links
     q, root, _ = x
     return FrameResult(frame=HandFrame(q=q, root=root, h=L.h, p=None), objective=L.objective, iterations=it,
                        converged=converged and L.viol <= VIOL_TOL, violation=L.viol, gap=L.gap)
-
-
-def _trial(setup, x, dx, L, step, N):
-    """The point x + dx and its linearisation, with a second-order correction when the step raised the merit by
-    breaking the (curved) constraints it was linearised on: one least-norm step back onto them from x + dx, kept
-    when it lowers the merit (the Maratos effect: without it a Gauss-Newton step that improves the objective is
-    rejected for the second-order violation it brings, and the iterates creep)."""
-    xn = _apply_step(x, dx, N)
-    Ln = linearise(setup, *xn)
-    if Ln.merit > L.merit and Ln.viol > L.viol:
-        xc = _apply_step(xn, step(Ln, 0.0, project=True), N)
-        Lc = linearise(setup, *xc)
-        if Lc.merit < Ln.merit:
-            return xc, Lc
-    return xn, Ln
-
-
-def _iterate(setup, x, L, max_iters: int, step, base, N):
-    """Damped Gauss-Newton on the l1 merit until it is stationary (module docstring, "Convergence").
-
-    Returns (x, its linearisation, iterations, converged). A step is accepted when it does not raise the merit
-    (beyond rounding); after an accepted step the damping falls by 3, after a rejected one it rises by 10.
-    The merit is stationary when an accepted step changed it by at most ``merit_tol`` of it, or moved no variable
-    by more than ``step_tol`` of its step scale, or no step lowers it however short (the damping reached
-    ``LM_MAX``); then :func:`_polish` decides convergence. Not stationary within ``max_iters``: not converged. The
-    caller also requires the constraints to hold within ``VIOL_TOL``."""
-    st = setup.st
-    lm, it = 1e-5, 0
-    while it < max_iters:
-        it += 1
-        dx = step(L, lm)
-        xn, Ln = _trial(setup, x, dx, L, step, N)
-        if Ln.merit > L.merit * (1 + 1e-12) + 1e-15:
-            lm *= 10.0                                     # backtrack: more damping, a shorter step
-            if lm > LM_MAX:                                # no descent at any step length: stationary
-                return _polish(setup, x, L, it, max_iters + POLISH_STEPS, step, base, N)
-            continue
-        change = L.merit - Ln.merit
-        x, L = xn, Ln
-        lm = max(lm / 3.0, 1e-9)
-        if change <= st.merit_tol * (1.0 + L.merit) or np.abs(dx / base).max() <= st.step_tol:
-            return _polish(setup, x, L, it, max_iters + POLISH_STEPS, step, base, N)
-    return x, L, it, False
-
-
-def _polish(setup, x, L, it: int, budget: int, step, base, N):
-    """Undamped Gauss-Newton steps from a point where the merit is stationary, accepted without comparing merits
-    (at this point merit differences are rounding: they cannot place the iterate closer than about
-    sqrt(rounding / curvature), milliradians along weakly determined directions), as long as each step is shorter
-    than ``POLISH_RATE`` times the one before. Converged when a step is at most ``POLISH_TOL`` of the step scale;
-    a step that does not contract, or the budget running out, ends it unconverged at the last point.
-
-    Returns (x, its linearisation, iterations, converged)."""
-    size_before = POLISH_MAX
-    while it < budget:
-        dx = step(L, 1e-9)
-        size = float(np.abs(dx / base).max())
-        if size > POLISH_RATE * size_before:
-            return x, L, it, False
-        it += 1
-        x = _apply_step(x, dx, N)
-        L = linearise(setup, *x)
-        if size <= POLISH_TOL:
-            return x, L, it, True
-        size_before = size
-    return x, L, it, False
 
 
 _TREES: dict = {}
