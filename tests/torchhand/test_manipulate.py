@@ -255,6 +255,24 @@ def test_cli_writes_a_result(scene_dir, tmp_path, capsys):
     assert "frames/s" in capsys.readouterr().out
 
 
+def test_cli_objective_options_reach_the_settings(scene_dir, tmp_path):
+    """--dynamics full, --sliding and --max-iters reach the synthesis (stats.json records them) and the stored
+    torques are Eq. 5 in full either way (MuJoCo within 1e-6 of the largest)."""
+    import json
+
+    out = tmp_path / "full"
+    assert cli(["manipulate", str(scene_dir), "--out", str(out), "--frames", "0:6", "--dynamics", "full",
+                "--sliding", "--max-iters", "12", "--no-progress"]) == 0
+    stats = json.loads((out / "stats.json").read_text())
+    synth = stats["settings"]["synth"]
+    assert (synth["dynamics"], synth["sliding"], synth["max_iters"]) == ("full", True, 12)
+    assert stats["objective_dynamics"] == "full" and stats["dynamics"] == "full"
+    assert max(stats["sqp_iterations"][1:]) <= 12 + 40
+    pytest.importorskip("mujoco")
+    worst, scale = mujoco_torque_error(out)
+    assert worst <= 1e-6 * scale
+
+
 def test_cli_bad_inputs_exit_2(scene_dir, tmp_path, capsys):
     cases = [
         (["manipulate", "box-turn", "--out", str(tmp_path / "a")], "--grasp: required for the built-in scene"),
@@ -263,6 +281,7 @@ def test_cli_bad_inputs_exit_2(scene_dir, tmp_path, capsys):
         (["manipulate", str(scene_dir), "--out", str(tmp_path / "d"), "--max-force", "-1"], "--max-force"),
         (["manipulate", str(scene_dir), "--out", str(tmp_path / "e"), "--grasp", str(tmp_path / "none.npz")],
          "none.npz"),
+        (["manipulate", str(scene_dir), "--out", str(tmp_path / "f"), "--max-iters", "0"], "max_iters"),
     ]
     for argv, words in cases:
         assert cli(argv + ["--no-progress"]) == 2, argv

@@ -17,7 +17,8 @@ Writes DIR/scene/ (with the synthesized wrist), DIR/hand.xml, DIR/solutions/sol_
 docs/manipulation.md). When the grasp cannot realise the motion at frame k (counted from the first manipulated
 frame), exit 1 with one line giving k and the wrench deficit; the frames synthesized before it are written as a
 valid result with ``complete: false`` and ``status: "grasp_unsuitable"`` in stats.json (nothing when there are
-none).
+none). Every frame runs to a stationary merit within ``--max-iters`` iterations and says whether it converged
+(stats.json ``sqp_converged``, ``frames_converged``).
 """
 
 from __future__ import annotations
@@ -46,6 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-objective", action="store_true",
                    help="ablation: minimise |q - q_prev|^2 instead of the torque deviation |u - u_bar|^2")
     p.add_argument("--frames", metavar="A:B", help="manipulate frames A <= t < B of the scene only")
+    p.add_argument("--dynamics", choices=("quasi-static", "full"), default="quasi-static",
+                   help="the objective's torques: quasi-static (default) or full, with the hand's M q_ddot + C by "
+                        "backward differences (the stored torques are Eq. 5 in full either way)")
+    p.add_argument("--sliding", action="store_true",
+                   help="hand contacts may slide (Liu's rule: a planned force on the friction cone's boundary); "
+                        "default: static")
+    p.add_argument("--max-iters", type=int, default=30, metavar="K",
+                   help="Gauss-Newton iterations per frame before polishing (the work budget; default 30)")
     add_threads_argument(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
@@ -120,7 +129,8 @@ def run(args) -> int:
         grasp_file = str(grasp_files[0]) if len(grasp_files) == 1 else [str(f) for f in grasp_files]
         settings = ManipulationSettings(
             plan=PlanSettings(window=args.window, max_contact_force=args.max_force),
-            synth=SynthSettings(objective="pose" if args.no_objective else "torque"))
+            synth=SynthSettings(objective="pose" if args.no_objective else "torque", dynamics=args.dynamics,
+                                sliding=args.sliding, max_iters=args.max_iters))
     except BaseException:
         writer.abandon()
         raise
