@@ -155,7 +155,7 @@ def main(argv=None) -> int:
     for r in rows:
         wa = "-" if r["wrist_ablation"] is None else f"{r['wrist_ablation']:.3g}"
         rb = r["robust"] or {}
-        cells = [f"{v[0]}, {v[1]:.1e}, {v[2]:.1e}" for v in (rb.get("moved", ("-", 0, 0)), rb.get("threads", ("-", 0, 0)))]
+        cells = [f"{v[0]}, {v[1]:.1e}, {v[2]:.1e}" for v in (rb.get(key, ("-", 0, 0)) for key in ("moved", "threads"))]
         print(f"| `{r['scene']}` | {r['converged']} / {r['frames']} | {r['wrist']:.3g} / {wa} ({r['ablation_frames']}) "
               f"| {cells[0]} | {cells[1]} |")
     return 1 if bad else 0

@@ -77,6 +77,14 @@ def _distal_angles(res, finger_links: dict, normal: np.ndarray, t: int) -> dict:
     return out
 
 
+def _table(header: tuple, row: dict, cells: tuple) -> None:
+    """One Markdown table: the header, then the run's frames (converged) and outcome, then ``cells``."""
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+    print(f"| {header[0]} | {row['frames']} ({row['converged']}) | {row['stop'] or 'complete'} | "
+          + " | ".join(cells) + " |")
+
+
 def press(work: Path) -> None:
     r = _run("liu-press", work / "press")
     res = r["result"]
@@ -88,10 +96,8 @@ def press(work: Path) -> None:
     normal = res.scene.object_pose[bottom, :3, 2].numpy()
     links = {"index": "index_distal", "middle": "middle_distal"}
     first, low = _distal_angles(res, links, normal, 0), _distal_angles(res, links, normal, bottom)
-    print("| press | frames (converged) | outcome | index distal to normal: first / bottom | middle |")
-    print("|---|---|---|---|---|")
-    print(f"| liu-press | {r['frames']} ({r['converged']}) | {r['stop'] or 'complete'} | {first['index']:.1f}° / "
-          f"{low['index']:.1f}° | {first['middle']:.1f}° / {low['middle']:.1f}° |")
+    _table(("liu-press", "frames (converged)", "outcome", "index distal to normal: first / bottom", "middle"), r,
+           (f"{first['index']:.1f}° / {low['index']:.1f}°", f"{first['middle']:.1f}° / {low['middle']:.1f}°"))
 
 
 def roll(work: Path) -> None:
@@ -100,14 +106,13 @@ def roll(work: Path) -> None:
     if res is None:
         print(f"liu-roll: {r['stop']}, nothing written")
         return
-    R0, R1 = res.root[0, :3, :3], res.root[-1, :3, :3]
-    turn = np.degrees(np.arccos(np.clip((np.trace(R1 @ R0.T) - 1) / 2, -1, 1)))
-    names = res.hand.joint_names
-    sel = [i for i, n in enumerate(names) if n.startswith(("thumb", "index"))]
+    R0 = res.root[0, :3, :3]
+    cos = [(np.trace(R @ R0.T) - 1) / 2 for R in res.root[:, :3, :3]]
+    turn = float(np.degrees(np.arccos(np.clip(min(cos), -1, 1))))
+    sel = [i for i, n in enumerate(res.hand.joint_names) if n.startswith(("thumb", "index"))]
     change = float(np.abs(res.q[:, sel] - res.q[0, sel]).max())
-    print("| roll | frames (converged) | outcome | wrist turn at the last frame | thumb and index joints, largest change |")
-    print("|---|---|---|---|---|")
-    print(f"| liu-roll | {r['frames']} ({r['converged']}) | {r['stop'] or 'complete'} | {turn:.1f}° | {change:.3f} rad |")
+    _table(("liu-roll", "frames (converged)", "outcome", "largest wrist turn",
+            "thumb and index joints, largest change"), r, (f"{turn:.1f}°", f"{change:.3f} rad"))
 
 
 def main(argv=None) -> int:

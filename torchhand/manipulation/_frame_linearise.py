@@ -154,9 +154,6 @@ def _objective(f: FrameSetup, Rl, h, q, root, s, ts):
         Jr = np.zeros((N, nv))
         Jr[:, :N] = du_dx
         Jr[:, N:] = np.einsum("hnc,hc->nh", du_dp, np.einsum("hij,hj->hi", Rl, seg)) * movable[None]
-        if f.inertia is not None:                          # Eq. 5's M q_ddot + C, linearised at the frame's start
-            r = r + f.inertia.residual(q, root)
-            Jr[:, :N] += f.inertia.m_dt2
     elif st.objective == "torque":
         Qb, Rb, Hb = _pose_batch(root, q, h, 1e-7, False)
         Hs = np.repeat(h[None], H, 0)
@@ -167,11 +164,11 @@ def _objective(f: FrameSetup, Rl, h, q, root, s, ts):
         r = ub[0] - ctx.u_bar
         Jr = ((ub[1:] - ub[0]) / 1e-7).T
         Jr[:, N:] *= movable[None]
-        if f.inertia is not None:
-            r = r + f.inertia.residual(q, root)
-            Jr[:, :N] += f.inertia.m_dt2
     else:
         r, Jr = np.zeros(0), np.zeros((0, nv))
+    if f.inertia is not None:                              # Eq. 5's M q_ddot + C, linearised at the frame's start
+        r = r + f.inertia.residual(q, root)                # (set only with the torque objective)
+        Jr[:, :N] += f.inertia.m_dt2
     rv = rotvec(root[:3, :3] @ R_prev.T)
     pr = np.concatenate([wq * rv, wx * (root[:3, 3] - prev.root[:3, 3]), wq * (q - prev.q),
                          st.prox_h * seg_len * (s - s_prev)])

@@ -107,9 +107,10 @@ def _synth_frame(run, ctxs, k: int, f_k: np.ndarray, prev: _Hands, pose_prev: np
     normals_prev = np.stack(c.n)
     n_w = normals_prev @ pose[k][:3, :3].T
     t1_w = np.stack(c.t1) @ pose[k][:3, :3].T
-    slide = np.array([ss.sliding and ((i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu,
-                                                                                  ss.boundary)))
-                      for i in range(H)], dtype=bool)
+    slide = np.zeros(H, dtype=bool)                     # hand contacts are static unless Liu's rule is on
+    if ss.sliding:
+        slide = np.array([(i in c.slide) or (active[i] and _boundary(f_k[i], n_w[i], t1_w[i], geo.mu, ss.boundary))
+                          for i in range(H)], dtype=bool)
     rel = pose[k] @ np.linalg.inv(pose_prev)
     out_frames, h_new, gap = [], h_prev.copy(), np.zeros(H)
     objective, iterations, converged, violation = 0.0, 0, True, 0.0

@@ -149,7 +149,7 @@ class _Carry:
     ts: list
     f_prev: np.ndarray
     z: object
-    before: list
+    older: list
 
 
 def _manipulate(scene, grasp, settings: ManipulationSettings | None, *, hand, progress) -> ManipulationResult:
@@ -208,7 +208,7 @@ def _stage1(scene, settings: ManipulationSettings, run, tally: _Tally) -> tuple[
     prev = _Hands(frames, np.stack(c.h), np.stack(c.p))
     ts_prev = [tree_state(ctx.order, q, root) for ctx, (q, root) in zip(ctxs, prev.frames)]   # kinematics of prev
     loop = _Loop(scene=scene, settings=settings, run=run, grasps=grasps, ctxs=ctxs, u_bar=u_bar)
-    return loop, _Carry(prev=prev, pose=pose[0], ts=ts_prev, f_prev=run.f_init_vals, z=None, before=frames)
+    return loop, _Carry(prev=prev, pose=pose[0], ts=ts_prev, f_prev=run.f_init_vals, z=None, older=frames)
 
 
 def _plan_and_synthesize(loop: _Loop, k: int, carry: _Carry, added_k: dict, tally: _Tally):
@@ -225,7 +225,7 @@ def _plan_and_synthesize(loop: _Loop, k: int, carry: _Carry, added_k: dict, tall
         f_k, z = _plan._step(run, k, carry.f_prev, z_in)
         t1 = time.perf_counter()
         syn = _synth_frame(run, loop.ctxs, k, f_k, carry.prev, carry.pose, H_before, added_k, loop.settings.synth,
-                           carry.before)
+                           carry.older)
         late = [i for i in np.flatnonzero(syn.closing) if abs(float(syn.gap[i])) > _plan.TOUCH_TOL]
         if not late:
             return f_k, z, syn, t1
@@ -286,7 +286,7 @@ def _finish_frame(loop: _Loop, k: int, carry: _Carry, f_k: np.ndarray, z, syn: _
     for j, (q, root) in enumerate(syn.frames):
         geo.move_hand(q, np.linalg.inv(pose[k]) @ root, j)
     return row, _Carry(prev=_Hands(syn.frames, syn.h, p_new), pose=pose[k], ts=ts, f_prev=f_fin, z=z,
-                       before=carry.prev.frames)
+                       older=carry.prev.frames)
 
 
 def _move_contacts(loop: _Loop, k: int, syn: _SynthFrame, active: np.ndarray, ts: list) -> np.ndarray:
@@ -345,6 +345,7 @@ def _contact_states(loop: _Loop, k: int, carry: _Carry, syn: _SynthFrame, active
     sliding_now = syn.slide.copy()
     c.slide.clear()
     for i in range(H):
-        if loop.settings.synth.sliding and active[i] and not syn.closing[i] and speed[i] > loop.settings.synth.slip_speed:
+        ss = loop.settings.synth
+        if ss.sliding and active[i] and not syn.closing[i] and speed[i] > ss.slip_speed:
             c.slide[i] = v_t[i]
     return sliding_now
