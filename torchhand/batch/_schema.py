@@ -57,6 +57,9 @@ MANIPULATE_OPTIONS = {
     "max_force": _Option("--max-force", "float", 30.0, 0, strict=True),
     "frames": _Option("--frames", "frames", None),
     "no_objective": _Option("--no-objective", "bool", False),
+    "dynamics": _Option("--dynamics", "str", "quasi-static", choices=("quasi-static", "full")),
+    "sliding": _Option("--sliding", "bool", False),
+    "max_iters": _Option("--max-iters", "int", 30, 1),
 }
 """Options of a ``manipulate`` job (``torchhand manipulate``'s flags and defaults; a test holds them together)."""
 
