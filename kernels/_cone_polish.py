@@ -138,7 +138,6 @@ def newton_fixed_point(w: torch.Tensor, P: torch.Tensor, q: torch.Tensor, mu: to
     mu, active: (B, K). Each step tries t = 1, 1/2, ... (``backtrack`` halvings) along the Newton direction and
     keeps the first t that reduces ||F||; where none does, it takes the plain ADMM step w - alpha F instead
     (which never increases ||F||). Early exits as in :func:`_newton`. Returns w."""
-    n = w.shape[1]
     pinned = (~active).repeat(1, 3).to(w.dtype)                               # inactive variables: F = w there
 
     def residual_and_step(w, P, q, mu, pinned):

@@ -96,7 +96,7 @@ def offscreen_renderer(width: int, height: int):
     try:
         import pyrender
     except ImportError as err:
-        raise RenderBackendError(f"rendering needs pyrender: pip install 'pyrender>=0.1.45' ({err})") from None
+        raise RenderBackendError(f"rendering needs pyrender (the maintained fork pyrender2): pip install 'pyrender2>=0.2.2' ({err})") from None
     try:
         return pyrender.OffscreenRenderer(int(width), int(height))
     except Exception as err:  # noqa: BLE001 - any GL/EGL failure becomes one actionable line

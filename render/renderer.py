@@ -197,7 +197,7 @@ class _Stage:
         pr = self.owner._pr
         self._set_frame(frame)
         flags = pr.RenderFlags.SHADOWS_DIRECTIONAL if self.owner.style.shadows else pr.RenderFlags.NONE
-        with warnings.catch_warnings():  # PyOpenGL 3.1.0 calls numpy's deprecated tostring() on read-back
+        with warnings.catch_warnings():  # older PyOpenGL calls numpy's deprecated tostring() on read-back
             warnings.filterwarnings("ignore", category=DeprecationWarning, module="OpenGL")
             color, _ = self.owner._renderer.render(self.scene, flags=flags)
         return np.ascontiguousarray(color[..., :3])

@@ -414,7 +414,7 @@ def render_skeleton_frames(panels: list[SkeletonPanel], opts: RenderOptions = Re
             images = []
             for stage in stages:
                 stage.set_frame(k)
-                with warnings.catch_warnings():  # PyOpenGL 3.1.0 calls numpy's deprecated tostring() on read-back
+                with warnings.catch_warnings():  # older PyOpenGL calls numpy's deprecated tostring() on read-back
                     warnings.filterwarnings("ignore", category=DeprecationWarning, module="OpenGL")
                     color, _ = renderer.render(stage.scene, flags=flags)
                 img = np.ascontiguousarray(color[..., :3])

@@ -41,6 +41,7 @@ LAYERS = [
     ("synthesis", ["torchhand.synthesis"]),
     ("methods", ["torchhand.interaction", "torchhand.manipulation", "torchhand.splice"]),
     ("export and render", ["torchhand.export", "torchhand.render"]),
+    ("viewer", ["torchhand.view"]),
     ("batch", ["torchhand.batch"]),
     ("cli", ["torchhand.cli"]),
 ]

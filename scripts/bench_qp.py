@@ -24,6 +24,7 @@ problems both solve, and agreement of the solved / infeasible classification. Th
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 
@@ -39,6 +40,8 @@ from test_qp import clarabel_qp, random_qps  # noqa: E402
 
 from torchhand.kernels.status import SolverStatus  # noqa: E402
 from torchhand.solvers._qpth import lp_feasible, solve_qp  # noqa: E402
+
+_HAS_QPTH = importlib.util.find_spec("qpth") is not None
 
 COLUMNS = ["name", "device", "dtype", "B", "median_s", "iqr_s", "problems_per_s", "speedup", "max_rel_obj_diff",
            "status_agreement", "converged"]
@@ -100,9 +103,10 @@ def bench_qp(device: str = "cpu", B: int = 1024, repeats: int = 3) -> list[dict]
     rows.append({"name": "clarabel LP feasibility per problem", "device": "cpu", "dtype": "float64", "B": B,
                  **t_lp_ref, "problems_per_s": B / t_lp_ref["median_s"], "converged": int(lp_ref.sum())})
     G, h, A, b = (prob[k].to(device) for k in ("G", "h", "A", "b"))
-    feas = lp_feasible(G, h, A, b)
-    t_lp = time_fn(lambda: lp_feasible(G, h, A, b), device, repeats, warmup=1)
-    rows.append({"name": "torchhand lp_feasible (phase-1 QP)", "device": device, "dtype": "float64", "B": B, **t_lp,
+    method = "qpth" if _HAS_QPTH else "admm"
+    feas = lp_feasible(G, h, A, b, method=method)
+    t_lp = time_fn(lambda: lp_feasible(G, h, A, b, method=method), device, repeats, warmup=1)
+    rows.append({"name": f"torchhand lp_feasible ({method})", "device": device, "dtype": "float64", "B": B, **t_lp,
                  "problems_per_s": B / t_lp["median_s"], "speedup": t_lp_ref["median_s"] / t_lp["median_s"],
                  "status_agreement": float(np.mean(feas.feasible.cpu().numpy() == lp_ref)),
                  "converged": int(feas.feasible.sum())})
@@ -141,7 +145,9 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
             runs = [("kernel solve_convex_qp (ipm+admm)", lambda: solve_convex_qp(**args), repeats)]
             if B <= dense_max_batch and device == "cpu":
                 runs.append(("dense torchhand.solvers._dense.solve_qp_dense", lambda: solve_qp_dense(**args), repeats))
-            runs.append(("qpth torchhand.solvers._qpth.solve_qp", lambda: solve_qp(**args, ridge=1e-8), qpth_repeats))
+            if _HAS_QPTH:            # the optional extra torchhand[qpth]; without it its rows are left out
+                runs.append(("qpth torchhand.solvers._qpth.solve_qp", lambda: solve_qp(**args, ridge=1e-8),
+                             qpth_repeats))
             t_qpth, first = None, len(rows)
             for name, fn, reps in runs:
                 res = fn()
@@ -157,7 +163,7 @@ def bench_window_qp(device: str = "cpu", sizes=(72, 168, 312), batches=(1, 64), 
                 rows.append(row)
                 if name.startswith("qpth"):
                     t_qpth = t["median_s"]
-            for row in rows[first:-1]:
+            for row in rows[first:-1] if t_qpth is not None else ():
                 row["speedup_vs_qpth"] = t_qpth / row["median_s"]
     return rows
 

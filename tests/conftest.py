@@ -14,6 +14,17 @@ torch.backends.cudnn.allow_tf32 = False
 REPO = Path(__file__).resolve().parents[1]
 
 
+def qpth_available() -> bool:
+    """Is the optional extra qpth (``torchhand[qpth]``, NumPy < 2) importable here?"""
+    import importlib.util
+    return importlib.util.find_spec("qpth") is not None
+
+
+# The qpth adapter's tests: they run in the NumPy 1 environment that has qpth (scripts/test_numpy1.sh, in CI).
+requires_qpth = pytest.mark.skipif(not qpth_available(), reason="the qpth adapter needs the optional extra "
+                                   "torchhand[qpth] (NumPy < 2); its tests run in scripts/test_numpy1.sh")
+
+
 def shared_data_dir() -> Path:
     """``$TORCHHAND_SHARED_DATA`` or ``<repo>/../shared/data``."""
     return Path(os.environ.get("TORCHHAND_SHARED_DATA", REPO.parent / "shared" / "data"))

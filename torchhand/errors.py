@@ -16,6 +16,7 @@ __all__ = [
     "FileFormatError",
     "MeshError",
     "UnknownNameError",
+    "MissingDependencyError",
 ]
 
 
@@ -52,3 +53,7 @@ class UnknownNameError(TorchhandError, KeyError):
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0]) if self.args else ""
+
+
+class MissingDependencyError(TorchhandError, ImportError):
+    """An optional extra that a requested feature needs is not installed; the message says how to install it."""

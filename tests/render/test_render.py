@@ -185,3 +185,48 @@ def test_two_hands(two_hand_result):
         assert 0 <= u < 160 and 0 <= v < 120
         win = img[max(v - 4, 0):v + 5, max(u - 4, 0):u + 5].reshape(-1, 3)
         assert ((win[:, 0] > win[:, 2] + 15) & (win[:, 0] > 150)).any()
+
+
+_PLATFORM_RENDER = """
+import sys
+import imageio.v3 as iio
+from torchhand.io.result import load_result
+from torchhand.render.clip import clip_from_solution
+from torchhand.render.compose import RenderOptions, panel_camera, render_frames
+result = load_result(sys.argv[1])
+clip = clip_from_solution(result, result.solution(0)).frames(0, 10)
+opts = RenderOptions(int(sys.argv[3]), int(sys.argv[4]))
+camera = panel_camera([clip], opts, clip.T, clip.fps)
+frames = list(render_frames([clip], opts, camera=camera))
+iio.imwrite(sys.argv[2], frames[5])
+import OpenGL.platform
+print(type(OpenGL.platform.PLATFORM).__name__)
+"""
+
+
+def _platform_available(platform: str) -> bool:
+    from torchhand.render import backend
+    if platform == "egl":
+        return backend._egl_works()
+    import ctypes.util
+    return ctypes.util.find_library("OSMesa") is not None
+
+
+@pytest.mark.parametrize("platform", ["egl", "osmesa"])
+def test_reference_image_on_each_headless_platform(box_turn_result, tmp_path, platform):
+    """The reference frame drawn through EGL and through OSMesa, each in its own process (PyOpenGL fixes its
+    platform when it is imported), matches the reference image within the bounds of test_reference_image."""
+    import subprocess
+    import sys
+    if not _platform_available(platform):
+        pytest.skip(f"{platform} is not available on this machine")
+    out = tmp_path / f"{platform}.png"
+    env = {**os.environ, "PYOPENGL_PLATFORM": platform}
+    run = subprocess.run([sys.executable, "-c", _PLATFORM_RENDER, str(box_turn_result), str(out), str(W), str(H)],
+                         env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert platform in run.stdout.strip().lower(), run.stdout  # the platform really used
+    frame = _half(iio.imread(out))
+    d = np.abs(iio.imread(REF).astype(int) - frame.astype(int))
+    mean, far = d.mean(), (d.max(-1) > 40).mean()
+    assert mean < 1.5 and far < 0.01, f"{platform}: mean abs difference {mean:.2f}, {100 * far:.1f}% off by > 40"

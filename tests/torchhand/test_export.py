@@ -115,7 +115,7 @@ def test_export_two_hands(tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["--format", "fbx"], "unknown format"),
+    (["--format", "obj"], "unknown format"),
     (["--solutions", "7"], "out of range"),
     (["--onto", "BODY"], "no [source] table"),
 ])

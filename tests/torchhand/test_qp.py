@@ -22,7 +22,7 @@ from torchhand.kernels.status import SolverStatus
 from torchhand.solvers._qpth import QP_TOLERANCES, FeasibilityResult, QPResult, lp_feasible, solve_qp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from conftest import shared_path  # noqa: E402
+from conftest import requires_qpth, shared_path  # noqa: E402
 
 CONVERGED, INFEASIBLE, MAX_ITERATIONS, INVALID = (int(SolverStatus.CONVERGED), int(SolverStatus.INFEASIBLE),
                                                   int(SolverStatus.MAX_ITERATIONS), int(SolverStatus.INVALID_INPUT))
@@ -105,6 +105,7 @@ def _batch(t: np.ndarray) -> torch.Tensor:
 
 
 # --------------------------------------------------------------------------------------------------- QP tests
+@requires_qpth
 @pytest.mark.parametrize("B", [1, 7])
 def test_smoke_shapes(B, dtype, device, gen):
     prob = random_qps(B, 5, 8, 2, gen, dtype=dtype, device=device)
@@ -118,6 +119,7 @@ def test_smoke_shapes(B, dtype, device, gen):
     assert bool((res.iterations > 0).all()) and bool((res.lam >= 0).all())
 
 
+@requires_qpth
 def test_shared_matrices_are_expanded(gen):
     prob = random_qps(7, 4, 6, 1, gen)
     shared = {k: (v if k == "p" else v[0]) for k, v in prob.items()}      # problem 0's data, 7 objectives
@@ -127,6 +129,7 @@ def test_shared_matrices_are_expanded(gen):
     assert res.status.tolist() == full.status.tolist() == [CONVERGED] * 7
 
 
+@requires_qpth
 def test_against_clarabel_random(dtype, gen):
     pytest.importorskip("clarabel")
     for nz, nineq, neq in [(3, 4, 0), (6, 10, 2), (12, 20, 5)]:
@@ -141,6 +144,7 @@ def test_against_clarabel_random(dtype, gen):
             np.testing.assert_allclose(res.z[i].double().numpy(), x, atol=1e-5 if dtype == torch.float64 else 1e-3)
 
 
+@requires_qpth
 @pytest.mark.parametrize("name", MM_NAMES)
 def test_maros_meszaros_objectives(name):
     root = shared_path("qp", "maros_meszaros")
@@ -161,6 +165,7 @@ def test_maros_meszaros_objectives(name):
         assert int(solve_qp(*args, ridge=1e-8, max_iters=5).status[0]) == INVALID
 
 
+@requires_qpth
 def test_infeasible_qps_are_flagged_and_do_not_spoil_the_batch(gen):
     pytest.importorskip("clarabel")
     bad = [1, 4]
@@ -187,6 +192,7 @@ def test_infeasible_qps_are_flagged_and_do_not_spoil_the_batch(gen):
     assert res.status.tolist() == [INFEASIBLE, CONVERGED]     # x <= 0 and x0 + x1 = 3 cannot hold
 
 
+@requires_qpth
 def test_invalid_inputs_are_flagged_per_problem(gen):
     prob = random_qps(5, 4, 6, 2, gen)
     prob["Q"][0, 1, 1] = float("nan")
@@ -208,6 +214,7 @@ def test_invalid_inputs_are_flagged_per_problem(gen):
     assert int(res.status[0]) == CONVERGED and float(res.objective[0]) == pytest.approx(0.0, abs=1e-7)
 
 
+@requires_qpth
 def test_no_constraints_of_one_kind(gen):
     prob = random_qps(3, 4, 5, 2, gen)
     eq_only = solve_qp(prob["Q"], prob["p"], A=prob["A"], b=prob["b"])
@@ -222,6 +229,7 @@ def test_no_constraints_of_one_kind(gen):
     torch.testing.assert_close(unconstrained.z, torch.linalg.solve(prob["Q"], -prob["p"]), rtol=1e-8, atol=1e-10)
 
 
+@requires_qpth
 def test_nothing_is_printed(capsys, gen):
     prob = random_qps(4, 5, 8, 1, gen, infeasible=[0, 2])
     solve_qp(**prob, max_iters=3)                       # qpth would print its "inaccurate solution" warning
@@ -230,6 +238,7 @@ def test_nothing_is_printed(capsys, gen):
     assert out.out == "" and out.err == ""
 
 
+@requires_qpth
 def test_gradients_match_qpth(gen):
     import contextlib
     import io
@@ -315,6 +324,7 @@ def pyramid_grasp_lp(mu: float, limit: float, weight: float = 1.0):
     return G, h, A, b
 
 
+@requires_qpth
 def test_lp_feasible_known_answers():
     f64 = torch.float64
     # Probability simplex {x >= 0, sum x = 1} is feasible; {x >= 0, sum x = -1} is not.
@@ -347,6 +357,7 @@ def test_lp_feasible_known_answers():
     assert res32.feasible.tolist() == res.feasible.tolist() and res32.z.dtype == torch.float32
 
 
+@requires_qpth
 def test_lp_feasible_against_clarabel_random(gen):
     pytest.importorskip("clarabel")
     B, nz, nineq, neq = 40, 5, 9, 2
@@ -373,6 +384,7 @@ def test_lp_feasible_against_clarabel_random(gen):
     assert bool((res.certified_radius[~feas] > 1.0).all())
 
 
+@requires_qpth
 def test_lp_feasible_invalid_input():
     G = torch.tensor([[[1.0]], [[float("nan")]]], dtype=torch.float64)
     h = torch.tensor([[1.0], [1.0]], dtype=torch.float64)
@@ -387,6 +399,7 @@ def test_tolerance_table_is_immutable():
 
 
 # ------------------------------------------------------------------------------------------- method="admm"
+@requires_qpth
 def test_admm_method_agrees_with_qpth_and_clarabel(gen):
     pytest.importorskip("clarabel")
     prob = random_qps(7, 8, 14, 3, gen, infeasible=[4])

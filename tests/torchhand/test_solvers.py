@@ -4,6 +4,8 @@ backend they name returns, and refuse unknown backends and options with a line n
 from __future__ import annotations
 
 import dataclasses
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +18,9 @@ from torchhand.solvers._dense import solve_qp_dense
 from torchhand.solvers._lemke import lemke
 from torchhand.solvers._qpth import lp_feasible, solve_qp
 from torchhand.solvers.lcp import random_lcp, solve_lcp
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from conftest import requires_qpth  # noqa: E402
 
 
 def _qps(B=5, nz=6, nineq=8, neq=2, seed=0):
@@ -53,7 +58,7 @@ def _same(a, b):
     ("kernel", solve_convex_qp, {}),
     ("kernel", solve_convex_qp, {"method": "admm", "tol": 1e-7}),
     ("dense", solve_qp_dense, {}),
-    ("qpth", solve_qp, {"max_iters": 30}),
+    pytest.param("qpth", solve_qp, {"max_iters": 30}, marks=requires_qpth),
 ])
 def test_qp_front_door_is_its_backend(backend, fn, options):
     for seed in range(3):
@@ -70,10 +75,29 @@ def test_qp_front_door_without_inequalities_or_equalities():
     _same(qp.solve(Q, p, G, h, backend="dense"), solve_qp_dense(Q, p, G, h))
 
 
-def test_lp_feasible_front_door():
+@pytest.mark.parametrize("method", [pytest.param("qpth", marks=requires_qpth), "admm"])
+def test_lp_feasible_front_door(method):
     _, _, G, h, A, b = _qps(seed=5)
-    for method in ("qpth", "admm"):
-        _same(qp.lp_feasible(G, h, A, b, method=method), lp_feasible(G, h, A, b, method=method))
+    _same(qp.lp_feasible(G, h, A, b, method=method), lp_feasible(G, h, A, b, method=method))
+
+
+def test_lp_feasible_front_door_defaults_to_the_kernel():
+    """The default feasibility path needs no optional extra: the front door's default method is "admm"."""
+    _, _, G, h, A, b = _qps(seed=5)
+    _same(qp.lp_feasible(G, h, A, b), lp_feasible(G, h, A, b, method="admm"))
+
+
+def test_qpth_backend_without_qpth_is_one_line(monkeypatch):
+    """Asking for qpth where it is not installed: one line with the install command, for solve and lp_feasible."""
+    from torchhand.errors import MissingDependencyError
+    for name in ("qpth", "qpth.solvers", "qpth.solvers.pdipm"):
+        monkeypatch.setitem(sys.modules, name, None)      # import raises ImportError, as when not installed
+    Q, p, G, h, A, b = _qps(seed=5)
+    for call in (lambda: qp.solve(Q, p, G, h, backend="qpth"), lambda: qp.lp_feasible(G, h, A, b, method="qpth")):
+        with pytest.raises(MissingDependencyError) as err:
+            call()
+        msg = str(err.value)
+        assert "\n" not in msg and "pip install 'torchhand[qpth]'" in msg
 
 
 def test_lcp_front_door_is_its_backend():

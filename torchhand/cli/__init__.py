@@ -16,7 +16,7 @@ from .._numerics import MODES, pin_for_command
 from ..errors import TorchhandError
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
-_COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot", "splice", "export", "batch",
+_COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot", "splice", "export", "view", "batch",
              "capture", "grasp", "manipulate", "numerics")
 
 

@@ -1,11 +1,14 @@
-"""``torchhand export RESULT_DIR --out DIR``: solutions as BVH and glTF, and fingers back onto a captured body.
+"""``torchhand export RESULT_DIR --out DIR``: solutions as BVH, glTF and FBX, and fingers back onto a captured body.
 
 Per solution: DIR/sol_XXX.bvh (the hand's skeleton, one joint per link of hand.xml, an End Site at each fingertip,
 centimetres and y-up by default) and DIR/sol_XXX.glb (glTF 2.0: the object and its motion, the table, the hand as
 animated nodes with a mesh per link, metres and y-up as glTF requires; --contacts adds contact points). A second
-hand goes to DIR/sol_XXX_<side>.bvh. With --onto BODY.bvh (a scene imported by `scene import-mocap --body-bvh`):
-DIR/body_with_fingers.bvh, the body's channels untouched, its finger joints driven by the solution. DIR/export.json
-lists what was written. Blender walk-through and conventions: docs/export.md.
+hand goes to DIR/sol_XXX_<side>.bvh. --format fbx (not a default) also writes DIR/sol_XXX.fbx through Blender: an
+armature per hand, the object mesh, metres, frame t at FBX time t/fps (needs bpy: pip install 'torchhand[blender]',
+or TORCHHAND_BLENDER=/path/to/blender, or blender on PATH). With --onto BODY.bvh (a scene imported by `scene
+import-mocap --body-bvh`): DIR/body_with_fingers.bvh, the body's channels untouched, its finger joints driven by the
+solution (and body_with_fingers.fbx with --format fbx). DIR/export.json lists what was written. Blender walk-through
+and conventions: docs/export.md.
 """
 
 from __future__ import annotations
@@ -16,14 +19,15 @@ from ._common import Progress, add_threads_argument, apply_threads
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="write solutions as BVH / glTF, or fingers back onto the captured body",
+    p = sub.add_parser("export", help="write solutions as BVH / glTF / FBX, or fingers back onto the captured body",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("result", metavar="RESULT_DIR", help="a result directory (torchhand synthesize --out)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created)")
     p.add_argument("--solutions", default=None, metavar="0,1|all",
                    help="solutions to export: indices (0,2), a range (1:4) or all (default all; 0 with --onto)")
-    p.add_argument("--format", default=None, metavar="bvh,gltf",
-                   help="formats to write (default bvh,gltf; with --onto only the body unless given)")
+    p.add_argument("--format", default=None, metavar="bvh,gltf,fbx",
+                   help="formats to write: bvh, gltf, fbx (default bvh,gltf; with --onto only the body unless "
+                        "given; fbx runs Blender)")
     p.add_argument("--units", choices=["cm", "m"], default="cm", help="BVH units (default cm)")
     p.add_argument("--up", choices=["y", "z"], default="y", help="BVH up axis (default y)")
     p.add_argument("--contacts", action="store_true", help="put contact points into the glb as small spheres")

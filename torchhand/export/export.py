@@ -6,8 +6,10 @@ the same export. Files in ``DIR`` (docs/export.md):
     sol_XXX.bvh            the first hand of solution XXX (XXX from ``solutions/sol_XXX.npz``)
     sol_XXX_<side>.bvh     the second hand, for two-hand results
     sol_XXX.glb            the whole solution as glTF 2.0: object, table, hands, optional contacts
+    sol_XXX.fbx            the whole solution as FBX (through Blender): hand armatures, object mesh
     body_with_fingers.bvh  with ``onto``: the captured body with the solution's fingers (one solution);
-                           body_with_fingers_XXX.bvh per solution when several are asked for
+                           body_with_fingers_XXX.bvh per solution when several are asked for; also as
+                           .fbx with the fbx format
     export.json            what was written, with the settings and the onto report
 
 Every file is written atomically. ``DIR`` is checked before any work: a new or empty directory, or an earlier
@@ -25,11 +27,13 @@ from .._atomic import atomic_json, writable_dir
 from ..scene.bvh import read_bvh, write_bvh
 from ..errors import InputValueError
 from ..io.result import load_result, parse_solution_spec
+from .fbx import body_fbx_scene, find_blender, solution_fbx_scene, write_fbx
 from .skeleton import UNITS, UP_AXES, hand_motion_clip, hand_skeleton
 
-__all__ = ["FORMATS", "ExportReport", "export_result", "prepare_export_dir"]
+__all__ = ["FORMATS", "DEFAULT_FORMATS", "ExportReport", "export_result", "prepare_export_dir"]
 
-FORMATS = ("bvh", "gltf")
+FORMATS = ("bvh", "gltf", "fbx")
+DEFAULT_FORMATS = ("bvh", "gltf")
 _REPORT = "export.json"
 
 
@@ -69,7 +73,7 @@ def prepare_export_dir(out, *, overwrite: bool = False) -> tuple[Path, list[str]
     return writable_dir(out), earlier
 
 
-def export_result(result_dir, out, *, solutions: str | None = "all", formats=FORMATS, units: str = "cm",
+def export_result(result_dir, out, *, solutions: str | None = "all", formats=DEFAULT_FORMATS, units: str = "cm",
                   up: str = "y", contacts: bool = False, onto=None, blend: float = 0.2, body_rig: str = "auto",
                   overwrite: bool = False, progress=None) -> ExportReport:
     """Export solutions of the result directory ``result_dir`` into ``out`` (module docstring).
@@ -78,7 +82,8 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
         result_dir: a result directory (``torchhand synthesize`` or any method writing the same format)
         out: the output directory
         solutions: "all", "0,2", "1:4" or None (solution 0); with ``onto``, None means solution 0
-        formats: any of "bvh", "gltf" (an empty tuple with ``onto``: only the body)
+        formats: any of "bvh", "gltf", "fbx" (an empty tuple with ``onto``: only the body); "fbx" runs Blender
+            (:func:`torchhand.export.fbx.find_blender`), found before any work
         units: BVH units, "cm" (default) or "m"; up: BVH up axis, "y" (default) or "z"; glTF is always metres, y-up
         contacts: also put contact points as small spheres into the glb
         onto: path of the body BVH the scene was imported from: also write ``body_with_fingers.bvh``
@@ -93,16 +98,7 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
     """
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
-    formats = tuple(formats)
-    bad = [f for f in formats if f not in FORMATS]
-    if bad:
-        raise InputValueError(f"--format: unknown format(s) {', '.join(bad)}; expected bvh, gltf")
-    if units not in UNITS:
-        raise InputValueError(f"--units: expected m or cm, got {units!r}")
-    if up not in UP_AXES:
-        raise InputValueError(f"--up: expected y or z, got {up!r}")
-    if not formats and onto is None:
-        raise InputValueError("--format: nothing to write (give bvh, gltf or --onto)")
+    formats = _check_options(tuple(formats), units, up, onto)
     result_dir = Path(result_dir)
     if (result_dir / "spliced.bvh").is_file() and not (result_dir / "solutions").exists():
         raise InputValueError(f"{result_dir}: is a splice output; its spliced.bvh is already a BVH of the body "
@@ -117,6 +113,7 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
         raise InputValueError(f"--onto: the scene of {result_dir} was not imported from motion capture (its "
                               "scene.toml has no [source] table); only `scene import-mocap --body-bvh` scenes can "
                               "be written back onto their body")
+    blender = find_blender() if "fbx" in formats else None        # found, or missing, before anything is written
     out, earlier = prepare_export_dir(out, overwrite=overwrite)
     written: list[Path] = []
     per_solution = []
@@ -140,15 +137,20 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
             path = out / f"{name}.glb"
             write_solution_glb(result, i, path, contacts=contacts)
             files.append(path)
+        if "fbx" in formats:
+            files.append(write_fbx(solution_fbx_scene(result, i), out / f"{name}.fbx", blender=blender))
         entry = {"solution": name, "files": [f.name for f in files]}
         if body is not None:
             from .onto import fingers_onto_body
 
             bpath = out / ("body_with_fingers.bvh" if len(indices) == 1 else f"body_with_fingers_{name[4:]}.bvh")
             done = fingers_onto_body(result, i, body, blend=blend, body_rig=body_rig, progress=say)
-            write_bvh(done.clip, bpath, precision=_decimals(onto))
-            files.append(bpath)
-            entry["files"].append(bpath.name)
+            body_files = [write_bvh(done.clip, bpath, precision=_decimals(onto))]
+            if "fbx" in formats:
+                body_files.append(write_fbx(body_fbx_scene(done.clip, result.scene.source),
+                                            bpath.with_suffix(".fbx"), blender=blender))
+            files += body_files
+            entry["files"] += [f.name for f in body_files]
             entry["onto"] = done.report
         written += files
         per_solution.append(entry)
@@ -156,17 +158,32 @@ def export_result(result_dir, out, *, solutions: str | None = "all", formats=FOR
     removed = []
     for old in earlier:
         p = out / Path(old).name
-        if p.name not in names and p.is_file() and p.suffix in (".bvh", ".glb"):
+        if p.name not in names and p.is_file() and p.suffix in (".bvh", ".glb", ".fbx"):
             p.unlink()
             removed.append(p.name)
     report = {
         "result": str(result_dir), "result_complete": bool(result.complete), "solutions": per_solution, "files": sorted(names),
         "formats": list(formats), "bvh_units": units, "bvh_up": up, "contacts": bool(contacts),
         "onto": str(onto) if onto is not None else None, "blend_s": float(blend) if onto is not None else None,
+        "fbx_blender": None if blender is None else blender.source,
         "removed_from_earlier_export": removed, "seconds": time.perf_counter() - t0,
     }
     atomic_json(out / _REPORT, report)
     return ExportReport(out=out, files=tuple(written), removed=tuple(removed), report=report)
+
+
+def _check_options(formats: tuple, units: str, up: str, onto) -> tuple:
+    """The formats, after checking them, the BVH units and axes (one-line InputValueErrors)."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise InputValueError(f"--format: unknown format(s) {', '.join(bad)}; expected bvh, gltf, fbx")
+    if units not in UNITS:
+        raise InputValueError(f"--units: expected m or cm, got {units!r}")
+    if up not in UP_AXES:
+        raise InputValueError(f"--up: expected y or z, got {up!r}")
+    if not formats and onto is None:
+        raise InputValueError("--format: nothing to write (give bvh, gltf, fbx or --onto)")
+    return formats
 
 
 def _decimals(path) -> int:

@@ -131,7 +131,7 @@ def mesh_content_hash(mesh: trimesh.Trimesh) -> str:
 def _cache_path(mesh: trimesh.Trimesh, voxel_size: float, padding: float, cache_dir) -> Path:
     """Cache file of the grid of ``mesh`` at ``voxel_size`` and ``padding`` (metres), in ``cache_dir`` or the default."""
     key = hashlib.sha256(
-        f"{mesh_content_hash(mesh)}|{voxel_size!r}|{padding!r}|{BUILD_VERSION}".encode()
+        f"{mesh_content_hash(mesh)}|{float(voxel_size)!r}|{float(padding)!r}|{BUILD_VERSION}".encode()
     ).hexdigest()[:32]
     return _cache_root(cache_dir) / f"sdf_{key}.npz"
 

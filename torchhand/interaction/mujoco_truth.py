@@ -129,22 +129,22 @@ def planar_finger_mjcf(compliance) -> str:
     damping = [2 * DAMPING_RATIO * math.sqrt(eff[j] / c[j]) for j in range(4)]
     body = ""
     for j in reversed(range(4)):
-        pos = "0 0 0" if j == 0 else f"{_LENGTHS[j - 1]!r} 0 0"
+        pos = "0 0 0" if j == 0 else f"{_LENGTHS[j - 1]:.17g} 0 0"
         x0, x1 = (0.01, _LENGTHS[j] - 0.01) if j < 3 else (0.0, _LENGTHS[j] - _RADII[j])
         body = (f'<body name="{LINKS[j]}" pos="{pos}">'
                 f'<joint name="{JOINTS[j]}" type="hinge" axis="0 1 0" range="-1.6 1.6" '
-                f'stiffness="{1.0 / c[j]!r}" damping="{damping[j]!r}"/>'
-                f'<inertial pos="{_LENGTHS[j] / 2!r} 0 0" mass="{LINK_MASS!r}" '
-                f'diaginertia="{inertia!r} {inertia!r} {inertia!r}"/>'
-                f'<geom name="{LINKS[j]}_geom" type="capsule" fromto="{x0!r} 0 0 {x1!r} 0 0" '
-                f'size="{_RADII[j]!r}" contype="1" conaffinity="0"/>{body}</body>')
+                f'stiffness="{1.0 / c[j]:.17g}" damping="{damping[j]:.17g}"/>'
+                f'<inertial pos="{_LENGTHS[j] / 2:.17g} 0 0" mass="{LINK_MASS:.17g}" '
+                f'diaginertia="{inertia:.17g} {inertia:.17g} {inertia:.17g}"/>'
+                f'<geom name="{LINKS[j]}_geom" type="capsule" fromto="{x0:.17g} 0 0 {x1:.17g} 0 0" '
+                f'size="{_RADII[j]:.17g}" contype="1" conaffinity="0"/>{body}</body>')
     return f"""<mujoco model="planar_finger">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{TIMESTEP!r}" gravity="0 0 0" integrator="implicitfast" cone="elliptic"/>
+  <option timestep="{TIMESTEP:.17g}" gravity="0 0 0" integrator="implicitfast" cone="elliptic"/>
   <worldbody>
     <geom name="surface" type="box" size="0.3 0.1 0.01" pos="0.1 0 -0.01" contype="0" conaffinity="1"
           friction="1 0.005 0.0001" solref="0.0005 1" solimp="0.99 0.999 0.001"/>
-    <body name="forearm" pos="0 0 {ROOT_HEIGHT!r}">
+    <body name="forearm" pos="0 0 {ROOT_HEIGHT:.17g}">
       {body}
     </body>
   </worldbody>

@@ -211,13 +211,13 @@ def perturbation_mjcf(settings: PerturbSettings, theta_r, platform_z: float, pla
         m = float(settings.link_mass[j])
         L, r = _LENGTHS[j], _RADII[j]
         inertia = m * (L * L / 12 + r * r / 4)
-        pos = "0 0 0" if j == 0 else f"{_LENGTHS[j - 1]!r} 0 0"
+        pos = "0 0 0" if j == 0 else f"{_LENGTHS[j - 1]:.17g} 0 0"
         x0, x1 = (0.01, L - 0.01) if j < 3 else (0.0, L - r)
         body = (f'<body name="{LINKS[j]}" pos="{pos}">'
-                f'<joint name="{JOINTS[j]}" type="hinge" axis="0 1 0" stiffness="{1.0 / c[j]!r}" '
-                f'springref="{th[j]!r}" damping="{settings.damping_time / c[j]!r}"/>'
-                f'<inertial pos="{L / 2!r} 0 0" mass="{m!r}" diaginertia="{m * r * r / 2!r} {inertia!r} {inertia!r}"/>'
-                f'<geom name="{LINKS[j]}_geom" type="capsule" fromto="{x0!r} 0 0 {x1!r} 0 0" size="{r!r}" '
+                f'<joint name="{JOINTS[j]}" type="hinge" axis="0 1 0" stiffness="{1.0 / c[j]:.17g}" '
+                f'springref="{th[j]:.17g}" damping="{settings.damping_time / c[j]:.17g}"/>'
+                f'<inertial pos="{L / 2:.17g} 0 0" mass="{m:.17g}" diaginertia="{m * r * r / 2:.17g} {inertia:.17g} {inertia:.17g}"/>'
+                f'<geom name="{LINKS[j]}_geom" type="capsule" fromto="{x0:.17g} 0 0 {x1:.17g} 0 0" size="{r:.17g}" '
                 f'contype="1" conaffinity="0"/>{body}</body>')
     hx, hy, hz = PLATFORM_HALF
     pm = settings.platform_mass
@@ -226,17 +226,17 @@ def perturbation_mjcf(settings: PerturbSettings, theta_r, platform_z: float, pla
     condim = 1 if settings.friction == 0 else 3
     return f"""<mujoco model="planar_finger_perturbation">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{TIMESTEP!r}" gravity="0 0 0" integrator="implicitfast" cone="elliptic"/>
+  <option timestep="{TIMESTEP:.17g}" gravity="0 0 0" integrator="implicitfast" cone="elliptic"/>
   <worldbody>
-    <body name="forearm" pos="0 0 {ROOT_HEIGHT!r}">
+    <body name="forearm" pos="0 0 {ROOT_HEIGHT:.17g}">
       {body}
     </body>
-    <body name="platform" pos="{platform_x!r} 0 {platform_z - hz!r}">
-      <joint name="platform_z" type="slide" axis="0 0 1" stiffness="{ks!r}" springref="{preload / ks!r}"
-             range="-0.05 {settings.platform_travel!r}"/>
-      <inertial pos="0 0 0" mass="{pm!r}" diaginertia="1e-5 1e-5 1e-5"/>
-      <geom name="platform_geom" type="box" priority="1" size="{hx!r} {hy!r} {hz!r}" contype="0"
-            conaffinity="1" condim="{condim}" friction="{max(settings.friction, 1e-9)!r} 0.005 0.0001" solref="0.0005 1"
+    <body name="platform" pos="{platform_x:.17g} 0 {platform_z - hz:.17g}">
+      <joint name="platform_z" type="slide" axis="0 0 1" stiffness="{ks:.17g}" springref="{preload / ks:.17g}"
+             range="-0.05 {settings.platform_travel:.17g}"/>
+      <inertial pos="0 0 0" mass="{pm:.17g}" diaginertia="1e-5 1e-5 1e-5"/>
+      <geom name="platform_geom" type="box" priority="1" size="{hx:.17g} {hy:.17g} {hz:.17g}" contype="0"
+            conaffinity="1" condim="{condim}" friction="{max(settings.friction, 1e-9):.17g} 0.005 0.0001" solref="0.0005 1"
             solimp="0.99 0.999 0.001"/>
     </body>
   </worldbody>

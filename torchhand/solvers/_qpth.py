@@ -74,7 +74,7 @@ from ._qp_records import (_CERTAIN, _CONVERGED, _INFEASIBLE, _INVALID, _MAX_ITER
                           QP_TOLERANCES, FeasibilityResult, QPResult, _prepare, _well_posed,
                           _witness_and_certificate)
 from ._qpth_admm import _lp_feasible_admm, _solve_qp_admm
-from ._qpth_patches import _solve_batch
+from ._qpth_patches import _pdipm, _solve_batch
 
 __all__ = ["QPResult", "FeasibilityResult", "QP_TOLERANCES", "solve_qp", "lp_feasible"]
 
@@ -149,6 +149,7 @@ def solve_qp(
     Q, p, G, h, A, b, finite = _prepare(Q, p, G, h, A, b, ridge)
     if not isinstance(max_iters, int) or max_iters < 1:
         raise InputValueError(f"max_iters: expected a positive int, got {max_iters!r}")
+    _pdipm()                   # the optional extra: one line saying how to install it, before any work
     tol = QP_TOLERANCES[p.dtype] if tol is None else float(tol)
     B, nz = p.shape
     valid = _well_posed(Q.detach(), A.detach(), finite)
@@ -251,6 +252,8 @@ def lp_feasible(
         raise InputValueError(f"ridge: expected a positive number, got {ridge!r}")
     if method not in ("qpth", "admm"):
         raise InputValueError(f"method: expected 'qpth' or 'admm', got {method!r}")
+    if method == "qpth":
+        _pdipm()
     dt, dev, f64 = G.dtype, G.device, torch.float64
     Gd, hd = G.detach().to(f64), h.detach().to(f64)
     Ad = A.detach().to(f64) if A is not None else Gd.new_zeros(B, 0, nz)

@@ -8,8 +8,20 @@ import contextlib
 import io
 
 import torch
-from qpth.solvers.pdipm import batch as _pdipm
 
+from ..errors import MissingDependencyError
+
+QPTH_HINT = ("the qpth backend needs the optional extra qpth, which keeps NumPy < 2: pip install 'torchhand[qpth]' "
+             "(the default QP path, backend=\"kernel\" / method=\"admm\", needs nothing more)")
+
+
+def _pdipm():
+    """qpth's batched PDIPM module; a MissingDependencyError with the install line when qpth is not installed."""
+    try:
+        from qpth.solvers.pdipm import batch
+    except ImportError as exc:
+        raise MissingDependencyError(f"{QPTH_HINT} ({exc})") from None
+    return batch
 
 
 def _step_length(v: torch.Tensor, dv: torch.Tensor) -> torch.Tensor:
@@ -47,12 +59,13 @@ def _per_problem_steps():
     Module attributes of qpth are swapped for the duration of our call and restored after it: another thread
     calling qpth directly at the same moment would see them too (same results for well-posed problems).
     """
-    originals = _pdipm.get_step, _pdipm.lu_hack
-    _pdipm.get_step, _pdipm.lu_hack = _step_length, _lu_no_raise
+    pdipm = _pdipm()
+    originals = pdipm.get_step, pdipm.lu_hack
+    pdipm.get_step, pdipm.lu_hack = _step_length, _lu_no_raise
     try:
         yield
     finally:
-        _pdipm.get_step, _pdipm.lu_hack = originals
+        pdipm.get_step, pdipm.lu_hack = originals
 
 
 def _qpth_forward(Q, p, G, h, A, b, max_iters: int):
@@ -66,8 +79,8 @@ def _qpth_forward(Q, p, G, h, A, b, max_iters: int):
     out = io.StringIO()
     try:
         with contextlib.redirect_stdout(out), _per_problem_steps():
-            factors = _pdipm.pre_factor_kkt(Q, G, A_)
-            z, nu, lam, slack = _pdipm.forward(Q, p, G, h, A_, b_, *factors, 1e-12, 1, 3, max_iters)
+            factors = _pdipm().pre_factor_kkt(Q, G, A_)
+            z, nu, lam, slack = _pdipm().forward(Q, p, G, h, A_, b_, *factors, 1e-12, 1, 3, max_iters)
     except RuntimeError:       # a singular factorisation that the screening did not foresee
         z = None
     iters = sum(1 for line in out.getvalue().splitlines() if line.startswith("iter:"))
@@ -104,11 +117,11 @@ class _QPFunction(torch.autograd.Function):
         B, nineq = lam.shape
         neq = A.shape[1]
         d = lam.clamp(min=1e-8) / slack.clamp(min=1e-8)
-        _pdipm.factor_kkt(S_LU, R, d)
+        _pdipm().factor_kkt(S_LU, R, d)
         zeros = z.new_zeros(B, nineq)
         A_ = A if neq else torch.empty(0, dtype=z.dtype, device=z.device)
         ry = z.new_zeros(B, neq) if neq else torch.empty(0, dtype=z.dtype, device=z.device)
-        dx, _, dlam, dnu = _pdipm.solve_kkt(Q_LU, d, G, A_, S_LU, dz, zeros, zeros, ry)
+        dx, _, dlam, dnu = _pdipm().solve_kkt(Q_LU, d, G, A_, S_LU, dz, zeros, zeros, ry)
 
         def outer(u, v):
             return u.unsqueeze(2) * v.unsqueeze(1)

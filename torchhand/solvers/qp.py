@@ -15,7 +15,8 @@ backend    what it is                                                  options (
            polish (small problems on the CPU)
 "qpth"     :func:`torchhand.solvers._qpth.solve_qp`: the qpth          ridge, tol, max_iters,     QPResult
            adapter (differentiable; per-problem screening and          check_infeasible, method
-           residual checks)
+           residual checks); the optional extra ``torchhand[qpth]``
+           (qpth declares NumPy < 2): without it, one line saying so
 =========  ==========================================================  =========================  ===============
 
 Shapes (all backends): ``Q`` (B, nz, nz), ``p`` (B, nz), ``G`` (B, nineq, nz), ``h`` (B, nineq), ``A`` (B, neq, nz),
@@ -76,7 +77,9 @@ def solve(Q, p, G=None, h=None, A=None, b=None, *, backend: str, **options):
 
 def lp_feasible(G, h, A=None, b=None, **options):
     """Is ``{z : G z <= h, A z = b}`` non-empty, per problem? :func:`torchhand.solvers._qpth.lp_feasible` (options
-    ``ridge``, ``tol``, ``max_iters``, ``method`` = "qpth" or "admm", the kernel's rule)."""
+    ``ridge``, ``tol``, ``max_iters``, ``method`` = "admm", the default: the project's convex-QP kernel and its rule,
+    or "qpth": the phase-1 QP through qpth, the optional extra ``torchhand[qpth]``)."""
+    options.setdefault("method", "admm")
     from ._qpth import lp_feasible as _lp_feasible
 
     check_options(_lp_feasible, "lp_feasible", options)
