@@ -71,8 +71,9 @@ def bpy():
     try:
         import bpy as blender
     except ImportError as err:
-        pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); "
-                    "install it with: pip install -e '.[blender]'")
+        pytest.skip(f"bpy (Blender as a Python module) cannot be imported ({err}); it needs NumPy < 2: "
+                    "pip install -e '.[blender]' in an environment of its own (scripts/setup.sh makes .venv-numpy1; "
+                    "scripts/test_numpy1.sh runs these tests there)")
     return blender
 
 

@@ -334,3 +334,34 @@ def fbx_fcurves(ob):
     except ImportError:
         return ad.action.fcurves
     return action_get_channelbag_for_slot(ad.action, ad.action_slot).fcurves
+
+
+_CHECK_IN_BLENDER = """
+import json, sys
+import bpy
+from torchhand.io.result import load_result
+from tests.torchhand.test_export_fbx import check_solution_fbx
+worst = check_solution_fbx(bpy, sys.argv[1], load_result(sys.argv[2]), int(sys.argv[3]))
+print(json.dumps(worst))
+"""
+
+
+def test_fbx_through_the_numpy1_environments_blender(box_result, tmp_path, monkeypatch):
+    """The main environment (NumPy 2, no bpy) writes FBX through the Blender of the NumPy 1 environment that
+    scripts/setup.sh makes (TORCHHAND_BLENDER = its Python), and that Blender reads it back within 1 mm."""
+    import subprocess
+    from pathlib import Path
+    repo = Path(__file__).resolve().parents[2]
+    p1 = Path(os.environ.get("TORCHHAND_NUMPY1_ENV", repo / ".venv-numpy1")) / "bin" / "python"
+    if not p1.is_file() or subprocess.run([str(p1), "-c", "import bpy"], capture_output=True).returncode:
+        pytest.skip(f"no NumPy 1 environment with bpy at {p1.parent.parent} (scripts/setup.sh makes it)")
+    monkeypatch.setenv("TORCHHAND_BLENDER", str(p1))
+    monkeypatch.setattr(fbx, "_bpy_imports", lambda: False)            # as in an environment without bpy
+    out = tmp_path / "out"
+    assert main(["export", str(box_result), "--out", str(out), "--solutions", "1", "--format", "fbx",
+                 "--no-progress"]) == 0
+    run = subprocess.run([str(p1), "-c", _CHECK_IN_BLENDER, str(out / "sol_001.fbx"), str(box_result), "1"],
+                         cwd=repo, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    worst = json.loads(run.stdout.strip().splitlines()[-1])
+    assert max(worst.values()) < TOL_M, worst
