@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import importlib.util
 import os
 import sys
 
@@ -86,6 +87,21 @@ def select_platform() -> str:
     return platform
 
 
+def _load_triton_first() -> None:
+    """Import Triton (present with CUDA builds of torch) before the first OpenGL context, if it is installed.
+
+    Mesa's software rasteriser (llvmpipe, under EGL and OSMesa) loads its own LLVM; importing Triton after that
+    crashes the process (a segmentation fault in Triton's extension, seen with torch 2.15 + Triton on Mesa 22), and
+    torch imports Triton lazily, e.g. when an optimizer is created. Loaded first, both work.
+    """
+    if "triton" in sys.modules or importlib.util.find_spec("triton") is None:
+        return
+    try:
+        import triton  # noqa: F401
+    except Exception:  # noqa: BLE001 - a Triton that cannot load is torch's concern, not the renderer's
+        pass
+
+
 def offscreen_renderer(width: int, height: int):
     """A ``pyrender.OffscreenRenderer`` of ``width`` x ``height`` pixels on the chosen platform.
 
@@ -93,6 +109,7 @@ def offscreen_renderer(width: int, height: int):
         RenderBackendError: pyrender is not installed or no offscreen OpenGL context can be created.
     """
     platform = select_platform()
+    _load_triton_first()
     try:
         import pyrender
     except ImportError as err:

@@ -230,3 +230,33 @@ def test_reference_image_on_each_headless_platform(box_turn_result, tmp_path, pl
     d = np.abs(iio.imread(REF).astype(int) - frame.astype(int))
     mean, far = d.mean(), (d.max(-1) > 40).mean()
     assert mean < 1.5 and far < 0.01, f"{platform}: mean abs difference {mean:.2f}, {100 * far:.1f}% off by > 40"
+
+
+_RENDER_THEN_TRITON = """
+import torch
+from torchhand.render.compose import RenderOptions, render_hand_motion
+from tests.render.fixture_result import rest_pose_motion
+hand, q, root = rest_pose_motion(frames=2)
+render_hand_motion(q, root, hand, opts=RenderOptions(64, 48, shadows=False))
+torch.optim.Adam([torch.nn.Parameter(torch.zeros(3))])      # torch imports Triton here (CUDA builds)
+import triton
+print("ok")
+"""
+
+
+@pytest.mark.parametrize("platform", ["egl", "osmesa"])
+def test_triton_after_rendering(platform):
+    """Where Triton is installed (CUDA builds of torch), rendering and then importing it must not crash: Mesa's
+    llvmpipe loads its own LLVM, so the renderer loads Triton before its first context (render/backend.py)."""
+    import importlib.util
+    import subprocess
+    import sys
+    if importlib.util.find_spec("triton") is None:
+        pytest.skip("Triton is not installed (a CPU build of torch)")
+    if not _platform_available(platform):
+        pytest.skip(f"{platform} is not available on this machine")
+    repo = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYOPENGL_PLATFORM": platform, "PYTHONPATH": str(repo)}
+    run = subprocess.run([sys.executable, "-c", _RENDER_THEN_TRITON], env=env, capture_output=True, text=True,
+                         timeout=600, cwd=repo)
+    assert run.returncode == 0 and run.stdout.strip().endswith("ok"), (run.returncode, run.stderr[-2000:])
