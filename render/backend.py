@@ -29,8 +29,10 @@ class RenderBackendError(TorchhandError, RuntimeError):
 def _egl_works() -> bool:
     """Whether libEGL loads and one of its devices (as pyrender opens them) or its default display initialises.
 
-    Uses ctypes only: no OpenGL import, no context.
+    Uses ctypes only: no OpenGL import, no context. Initialising a display loads Mesa's LLVM, so Triton goes first
+    (:func:`_load_triton_first`).
     """
+    _load_triton_first()
     name = ctypes.util.find_library("EGL")
     if not name:
         return False
@@ -90,9 +92,10 @@ def select_platform() -> str:
 def _load_triton_first() -> None:
     """Import Triton (present with CUDA builds of torch) before the first OpenGL context, if it is installed.
 
-    Mesa's software rasteriser (llvmpipe, under EGL and OSMesa) loads its own LLVM; importing Triton after that
-    crashes the process (a segmentation fault in Triton's extension, seen with torch 2.15 + Triton on Mesa 22), and
-    torch imports Triton lazily, e.g. when an optimizer is created. Loaded first, both work.
+    Mesa's software rasteriser (llvmpipe, under EGL and OSMesa; already when an EGL display is initialised) loads its
+    own LLVM; importing Triton after that crashes the process (a segmentation fault in Triton's extension, seen with
+    torch 2.15 + Triton on Mesa 22), and torch imports Triton lazily, e.g. when an optimizer is created. Loaded
+    first, both work.
     """
     if "triton" in sys.modules or importlib.util.find_spec("triton") is None:
         return
@@ -108,8 +111,8 @@ def offscreen_renderer(width: int, height: int):
     Raises:
         RenderBackendError: pyrender is not installed or no offscreen OpenGL context can be created.
     """
-    platform = select_platform()
     _load_triton_first()
+    platform = select_platform()
     try:
         import pyrender
     except ImportError as err:

@@ -234,6 +234,8 @@ def test_reference_image_on_each_headless_platform(box_turn_result, tmp_path, pl
 
 _RENDER_THEN_TRITON = """
 import torch
+from torchhand.render import backend
+backend._egl_works()                                          # the platform probe initialises an EGL display
 from torchhand.render.compose import RenderOptions, render_hand_motion
 from tests.render.fixture_result import rest_pose_motion
 hand, q, root = rest_pose_motion(frames=2)
