@@ -23,8 +23,8 @@ else
 fi
 
 # torch first, pinned, so that no dependency pulls another (CUDA) build. A machine that already has a torch
-# >= 2.4 (a GPU machine, say) keeps it.
-if ! "$PY" -c "import torch, sys; v=tuple(int(x) for x in torch.__version__.split('+')[0].split('.')[:2]); sys.exit(v < (2, 4))" 2>/dev/null; then
+# >= 2.5.1 (a GPU machine, say) keeps it.
+if ! "$PY" -c "import torch, sys; v=tuple(int(x) for x in torch.__version__.split('+')[0].split('.')[:3]); sys.exit(v < (2, 5, 1))" 2>/dev/null; then
   "$PY" -m pip install -q "torch==2.13.0"
 fi
 # pyrender (unmaintained since 2021) is replaced by its maintained fork pyrender2, which installs the same `pyrender`
