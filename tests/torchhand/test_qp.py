@@ -81,9 +81,13 @@ def clarabel_qp(Q, p, G=None, h=None, A=None, b=None):
 
 def load_maros_meszaros(name: str, root: Path):
     """A Maros-Meszaros QP ``0.5 x'Px + q'x + r, l <= Ax <= u`` as dense (P, q, r, G, h, A_eq, b_eq)."""
+    import inspect
+
     import scipy.io as sio
 
-    d = sio.loadmat(str(root / f"{name}.mat"))
+    # sparse arrays where SciPy can return them (its sparse matrices are deprecated from 1.18); .toarray() either way
+    kw = {"spmatrix": False} if "spmatrix" in inspect.signature(sio.loadmat).parameters else {}
+    d = sio.loadmat(str(root / f"{name}.mat"), **kw)
     P, q = d["P"].toarray(), d["q"].ravel()
     r = float(np.asarray(d["r"]).ravel()[0])
     M, lo, up = d["A"].toarray(), d["l"].ravel(), d["u"].ravel()
