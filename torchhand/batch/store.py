@@ -279,7 +279,7 @@ def recover(layout: Layout, journal: Journal, jobs: tuple[Job, ...], *, grace_s:
     starts = _record_unlogged_starts(layout, journal, by_id)
     _set_aside_broken(layout, journal, by_id, note)
     left = _clean_staging(layout, journal, by_id, starts, grace_s, note)
-    _close_dangling(layout, journal, starts, left)
+    _close_dangling(layout, journal, starts, left, grace_s)
     finished = {i for i in by_id if not _complete_result(layout.job_dir(i))}
     on_disk = _attempts_on_disk(layout)
     counts: dict[str, int] = {}
@@ -348,13 +348,20 @@ def _clean_staging(layout: Layout, journal: Journal, by_id: dict, starts: dict, 
     return left
 
 
-def _close_dangling(layout: Layout, journal: Journal, starts: dict, left: set) -> None:
-    """A ``finish`` (the result is in place) or a late ``fail`` for every start without an end."""
+def _close_dangling(layout: Layout, journal: Journal, starts: dict, left: set, grace_s: float = 10.0) -> None:
+    """A ``finish`` (the result is in place) or a late ``fail`` for every start without an end. An attempt whose log
+    is still locked (a process of the killed run that has not exited yet) is waited for up to ``grace_s`` seconds,
+    as in :func:`_clean_staging`; still locked then, it is left to that process."""
     events = journal.read()
     ended = {(e.get("job"), e.get("attempt")) for e in events if e.get("event") in ("finish", "fail")}
     finished_ids = {e.get("job") for e in events if e.get("event") == "finish"}
     for (job_id, n) in starts:
-        if (job_id, n) in ended or (job_id, n) in left or log_busy(layout.log(job_id, n)):
+        if (job_id, n) in ended or (job_id, n) in left:
+            continue
+        deadline = time.monotonic() + grace_s
+        while log_busy(layout.log(job_id, n)) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        if log_busy(layout.log(job_id, n)):
             continue
         meta = read_json(layout.job_dir(job_id) / "job.json") or {}
         if meta.get("attempt") == n and job_id not in finished_ids:
