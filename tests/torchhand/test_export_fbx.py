@@ -328,12 +328,9 @@ def test_blender_reads_body_with_fingers_fbx(bpy, tmp_path, body):
 
 
 def fbx_fcurves(ob):
-    ad = ob.animation_data
-    try:
-        from bpy_extras.anim_utils import action_get_channelbag_for_slot
-    except ImportError:
-        return ad.action.fcurves
-    return action_get_channelbag_for_slot(ad.action, ad.action_slot).fcurves
+    """The F-curves of ``ob``'s action, as the Blender-side script reads them (needs bpy)."""
+    from torchhand.export._blender_fbx import _fcurves
+    return _fcurves(ob)
 
 
 _CHECK_IN_BLENDER = """

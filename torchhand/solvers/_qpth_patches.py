@@ -79,8 +79,9 @@ def _qpth_forward(Q, p, G, h, A, b, max_iters: int):
     out = io.StringIO()
     try:
         with contextlib.redirect_stdout(out), _per_problem_steps():
-            factors = _pdipm().pre_factor_kkt(Q, G, A_)
-            z, nu, lam, slack = _pdipm().forward(Q, p, G, h, A_, b_, *factors, 1e-12, 1, 3, max_iters)
+            pdipm = _pdipm()
+            factors = pdipm.pre_factor_kkt(Q, G, A_)
+            z, nu, lam, slack = pdipm.forward(Q, p, G, h, A_, b_, *factors, 1e-12, 1, 3, max_iters)
     except RuntimeError:       # a singular factorisation that the screening did not foresee
         z = None
     iters = sum(1 for line in out.getvalue().splitlines() if line.startswith("iter:"))
@@ -117,11 +118,12 @@ class _QPFunction(torch.autograd.Function):
         B, nineq = lam.shape
         neq = A.shape[1]
         d = lam.clamp(min=1e-8) / slack.clamp(min=1e-8)
-        _pdipm().factor_kkt(S_LU, R, d)
+        pdipm = _pdipm()
+        pdipm.factor_kkt(S_LU, R, d)
         zeros = z.new_zeros(B, nineq)
         A_ = A if neq else torch.empty(0, dtype=z.dtype, device=z.device)
         ry = z.new_zeros(B, neq) if neq else torch.empty(0, dtype=z.dtype, device=z.device)
-        dx, _, dlam, dnu = _pdipm().solve_kkt(Q_LU, d, G, A_, S_LU, dz, zeros, zeros, ry)
+        dx, _, dlam, dnu = pdipm.solve_kkt(Q_LU, d, G, A_, S_LU, dz, zeros, zeros, ry)
 
         def outer(u, v):
             return u.unsqueeze(2) * v.unsqueeze(1)
