@@ -39,7 +39,7 @@ LAYERS = [
     ("result files", ["torchhand.io"]),
     ("checker", ["torchhand.check"]),
     ("synthesis", ["torchhand.synthesis"]),
-    ("methods", ["torchhand.interaction", "torchhand.manipulation", "torchhand.splice"]),
+    ("methods", ["torchhand.interaction", "torchhand.manipulation", "torchhand.splice", "torchhand.fill"]),
     ("export and render", ["torchhand.export", "torchhand.render"]),
     ("viewer", ["torchhand.view"]),
     ("batch", ["torchhand.batch"]),
