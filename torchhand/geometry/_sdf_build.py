@@ -17,6 +17,8 @@ How a grid is built
       :mod:`torchhand.geometry._sdf_winding`). ``w > 0.5`` is inside. Small holes and seams move the winding number
       only near the hole, so open scans keep a sign; a mesh whose winding number is ambiguous (between 0.2 and 0.8)
       over a large part of the region it encloses is reported as too open (:class:`~torchhand.errors.MeshError`).
+    * each node's nearest triangle is kept (``face``), so that queries near the surface can measure exact distances
+      and normals (:mod:`torchhand.geometry._sdf_surface`);
     * grids are cached on disk (npz, written atomically) keyed by the mesh content hash, voxel size, padding
       and the builder's version, in ``$TORCHHAND_CACHE`` or ``~/.cache/torchhand/sdf``.
     * a build (and :func:`~torchhand.geometry._sdf_winding.winding_number`) runs torch single-threaded and restores
@@ -45,15 +47,18 @@ from ._sdf_winding import _CHUNK, _winding, _WindingTree, inside_report
 
 __all__ = ["BUILD_VERSION", "mesh_content_hash"]
 
-BUILD_VERSION = "2"
+BUILD_VERSION = "3"
 """Version of the grid builder; part of the cache key (bump it when the values a build produces change)."""
 
 _MAX_NODES = 64_000_000      # refuse grids larger than this (memory); ask for a larger voxel
 _STRIDE = 8                 # coarsest winding-number lattice, in voxels; grid sizes are 8 m + 1
 
 
-def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> np.ndarray:
-    """Signed distances at the grid nodes, (Nx, Ny, Nz) float32, negative inside.
+def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed distances at the grid nodes, (Nx, Ny, Nz) float32, negative inside; each node's nearest triangle
+    (index into ``faces``), (Nx, Ny, Nz) int32; and each triangle's two-sided winding numbers, (F, 2) float32: at
+    ``0.01 voxel_size`` in front of its centroid (along its normal) and behind it (above 0.5: inside; see
+    :func:`_face_sides`).
 
     Winding numbers are evaluated directly on the stride-8 sub-lattice and, on the finer lattices (stride 4, 2, 1),
     only at nodes closer to the surface than the coarser-lattice nodes they would be interpolated from (stride
@@ -70,7 +75,8 @@ def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> np.nd
     org = torch.as_tensor(origin - centre, dtype=torch.float32)
     n_nodes = int(np.prod(shape))
     with _progress_bar(progress and n_nodes >= 100_000) as bar:
-        dist = _grid_distance(tri, org, voxel_size, shape, bar).numpy()
+        dist, face = _grid_distance(tri, org, voxel_size, shape, bar)
+        dist = dist.numpy()
         direct = np.zeros(shape, dtype=bool)
         direct[::_STRIDE, ::_STRIDE, ::_STRIDE] = True
         stride = _STRIDE // 2
@@ -91,6 +97,7 @@ def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> np.nd
         bar.total = (bar.total or 0) + -(-len(nodes) // _CHUNK)
         w = np.full(shape, np.nan)
         w[direct] = _winding(tree, nodes, 2.0, bar).numpy()
+        sides = _face_sides(tree, tri, 0.01 * voxel_size, bar)
     stride = _STRIDE
     while stride > 1:
         half = stride // 2
@@ -102,8 +109,24 @@ def _build_values(vertices, faces, origin, voxel_size, shape, progress) -> np.nd
         target[missing] = fine[missing]
         stride = half
     if report.inverted:
-        w = -w
-    return np.where(w > 0.5, -dist, dist).astype(np.float32)
+        w, sides = -w, -sides
+    return np.where(w > 0.5, -dist, dist).astype(np.float32), face.numpy().astype(np.int32), sides
+
+
+def _face_sides(tree: _WindingTree, tri: torch.Tensor, offset: float, bar) -> np.ndarray:
+    """Winding numbers just in front of and behind every triangle's centroid, (F, 2) float32.
+
+    A boundary triangle has about 0 on one side and 1 on the other; a triangle inside the solid (a part pushed into
+    another, as a teapot's spout) has about 1 on both sides, and a flap outside about 0 on both: queries near the
+    surface take the sign of the side they are on from here (:mod:`torchhand.kernels.sdf_surface`).
+    """
+    n = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=-1)
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-30)
+    c = tri.mean(1)
+    pts = torch.cat([c + offset * n, c - offset * n])
+    bar.total = (bar.total or 0) + -(-len(pts) // _CHUNK)
+    w = _winding(tree, pts, 2.0, bar).numpy()
+    return np.stack([w[:len(tri)], w[len(tri):]], 1).astype(np.float32)
 
 
 def _grid_layout(vertices: np.ndarray, voxel_size: float, padding: float) -> tuple[np.ndarray, tuple[int, int, int]]:
@@ -143,22 +166,25 @@ def _cache_root(cache_dir) -> Path:
     return Path(env) if env else Path.home() / ".cache" / "torchhand" / "sdf"
 
 
-def _read_cache(path: Path, shape: tuple) -> tuple[np.ndarray, np.ndarray] | None:
-    """Cached (values, origin), or None when absent or unreadable (a bad file is rebuilt and overwritten)."""
+def _read_cache(path: Path, shape: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Cached (values, origin, face, sides), or None when absent or unreadable (a bad file is rebuilt and
+    overwritten)."""
     if not path.is_file():
         return None
     try:
         with np.load(path, allow_pickle=False) as z:
             values, origin = np.asarray(z["values"]), np.asarray(z["origin"])
+            face, sides = np.asarray(z["face"]), np.asarray(z["sides"])
             version = str(z["version"])
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
-    if version != BUILD_VERSION or values.shape != tuple(shape) or origin.shape != (3,):
+    if version != BUILD_VERSION or values.shape != tuple(shape) or origin.shape != (3,) or face.shape != values.shape:
         return None
-    return values, origin
+    return values, origin, face, sides
 
 
-def _write_cache(path: Path, values: np.ndarray, origin: np.ndarray, voxel_size: float) -> None:
+def _write_cache(path: Path, values: np.ndarray, origin: np.ndarray, voxel_size: float, face: np.ndarray,
+                 sides: np.ndarray) -> None:
     """Write atomically (temporary file in the same folder, then os.replace); an unwritable cache is skipped."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -168,7 +194,7 @@ def _write_cache(path: Path, values: np.ndarray, origin: np.ndarray, voxel_size:
     try:
         with os.fdopen(fd, "wb") as fh:
             np.savez(fh, values=values.astype(np.float32), origin=origin, voxel_size=voxel_size,
-                     version=BUILD_VERSION)
+                     face=face.astype(np.int32), sides=sides.astype(np.float32), version=BUILD_VERSION)
         os.replace(tmp, path)
     except OSError:
         Path(tmp).unlink(missing_ok=True)

@@ -12,6 +12,8 @@ import math
 import numpy as np
 import torch
 
+from torchhand.kernels.sdf_surface import closest_point_region
+
 from ..errors import MeshError
 
 _BAND = 2.0                 # exact-distance band half-width, voxels
@@ -19,8 +21,10 @@ _SWEEPS = 1                 # fast-sweeping rounds (6 directions each) outside t
 _PAIRS_PER_CHUNK = 2_000_000
 
 
-def _grid_distance(tri: torch.Tensor, origin: torch.Tensor, voxel_size: float, shape: tuple, bar) -> torch.Tensor:
-    """Unsigned distance from every grid node to the triangles ``tri (F, 3, 3)``, (Nx, Ny, Nz), float32.
+def _grid_distance(tri: torch.Tensor, origin: torch.Tensor, voxel_size: float, shape: tuple,
+                   bar) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unsigned distance from every grid node to the triangles ``tri (F, 3, 3)``, (Nx, Ny, Nz), float32, and the
+    index of the triangle it was measured to, (Nx, Ny, Nz) long (the nearest triangle as far as steps 1-2 find it).
 
     1. Band: every node within ``_BAND`` voxels of a triangle gets its exact distance. Nodes are enumerated per
        triangle from the bounding boxes of a subdivision of the triangle into pieces at most two voxels long, so
@@ -88,7 +92,7 @@ def _grid_distance(tri: torch.Tensor, origin: torch.Tensor, voxel_size: float, s
                 bm[i] = torch.where(better, d, bm[i])
                 cm[i] = torch.where(better, cand.view(cm[i].shape), cm[i])
             bar.update(1)
-    return best
+    return best, closest
 
 
 def _band_boxes(tri: torch.Tensor, origin: torch.Tensor, voxel_size: float, shape: tuple, band: float):
@@ -124,28 +128,4 @@ def _band_boxes(tri: torch.Tensor, origin: torch.Tensor, voxel_size: float, shap
 
 def _closest_point_on_triangle(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     """Closest point to ``p`` on triangle (a, b, c), all (M, 3) -> (M, 3) (Ericson, Real-Time Collision Detection 5.1.5)."""
-    ab, ac = b - a, c - a
-    ap, bp, cp = p - a, p - b, p - c
-    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
-    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
-    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    tiny = torch.finfo(p.dtype).tiny
-
-    def safe(num, den):
-        return num / torch.where(den.abs() > tiny, den, torch.full_like(den, tiny))
-
-    denom = va + vb + vc
-    v, w = safe(vb, denom), safe(vc, denom)
-    res = a + ab * v[:, None] + ac * w[:, None]                       # interior
-    e43, e56 = d4 - d3, d5 - d6
-    m = (va <= 0) & (e43 >= 0) & (e56 >= 0)                             # edge BC
-    res = torch.where(m[:, None], b + (c - b) * safe(e43, e43 + e56)[:, None], res)
-    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)                               # edge AC
-    res = torch.where(m[:, None], a + ac * safe(d2, d2 - d6)[:, None], res)
-    res = torch.where(((d6 >= 0) & (d5 <= d6))[:, None], c, res)        # vertex C
-    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)                               # edge AB
-    res = torch.where(m[:, None], a + ab * safe(d1, d1 - d3)[:, None], res)
-    res = torch.where(((d3 >= 0) & (d4 <= d3))[:, None], b, res)        # vertex B
-    res = torch.where(((d1 <= 0) & (d2 <= 0))[:, None], a, res)         # vertex A
-    return res
+    return closest_point_region(p, a, b, c)[0]

@@ -36,10 +36,12 @@ from ..kernels.sdf import _sdf_impl, pack_corners, sdf_trilinear, sdf_trilinear_
 # The builder's helpers are looked up in this module's namespace by SDFGrid.from_mesh (tests patch them here).
 from ._sdf_build import BUILD_VERSION, _build_values, _cache_path, _grid_layout, _read_cache, _write_cache
 from ._sdf_common import _clean_arrays, _one_thread
+from ._sdf_surface import SurfaceTables, query_near_surface, surface_tables
 from ._sdf_winding import InsideReport, inside_report, winding_number
 
 __all__ = [
     "SDFGrid",
+    "SurfaceTables",
     "InsideReport",
     "inside_report",
     "winding_number",
@@ -58,6 +60,9 @@ class SDFGrid:
         origin: position of node (0, 0, 0) in the mesh frame, (3,), metres; node (i, j, k) sits at
             ``origin + voxel_size * (i, j, k)`` (node = voxel centre)
         voxel_size: node spacing, float, metres
+        surface: the mesh tables for exact queries near the surface (:meth:`query_surface`), each node's nearest
+            triangle among them, :class:`SurfaceTables`; None for a grid made of values only (then
+            :meth:`query_surface` falls back to the grid's values and gradient). :meth:`from_mesh` fills it.
         corners: derived, not a constructor argument: ``pack_corners(values)``, ((Nx-1)(Ny-1)(Nz-1), 8), the
             8 corner values of every cell for single-gather queries; None for grids above 4M nodes (8x memory)
 
@@ -67,6 +72,7 @@ class SDFGrid:
     values: torch.Tensor
     origin: torch.Tensor
     voxel_size: float
+    surface: SurfaceTables | None = field(default=None, repr=False)
     corners: torch.Tensor | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -128,13 +134,14 @@ class SDFGrid:
         path = _cache_path(mesh, voxel_size, padding, cache_dir)
         cached = _read_cache(path, shape)
         if cached is not None:
-            values, origin = cached
+            values, origin, face, sides = cached
         else:
             with _one_thread():
-                values = _build_values(vertices, faces, origin, voxel_size, shape, progress)
-            _write_cache(path, values, origin, voxel_size)
+                values, face, sides = _build_values(vertices, faces, origin, voxel_size, shape, progress)
+            _write_cache(path, values, origin, voxel_size, face, sides)
         return cls(values=torch.from_numpy(values.astype(np.float32)).to(dtype),
-                   origin=torch.from_numpy(origin.astype(np.float32)).to(dtype), voxel_size=float(voxel_size))
+                   origin=torch.from_numpy(origin.astype(np.float32)).to(dtype), voxel_size=float(voxel_size),
+                   surface=surface_tables(vertices, faces, face, sides, dtype))
 
     # ------------------------------------------------------------------------------------------------ queries
     def query(self, points: torch.Tensor, *, check: bool = False) -> torch.Tensor:
@@ -171,6 +178,42 @@ class SDFGrid:
         ``points`` (B, P, 3) on the grid's device and dtype; returns (sd (B, P), grad (B, P, 3))."""
         with torch.no_grad():
             return _sdf_impl(self.values, self.origin, float(self.voxel_size), points, True, self.corners)
+
+    def query_surface(self, points: torch.Tensor, *, band: float | None = None
+                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Signed distance, outward normal and closest surface point, exact near the surface.
+
+        Within ``band`` of the surface (by the grid's value; default two voxel diagonals) the distance is measured
+        to the nearest of the triangles nearest to the point's cell corners, the normal is the exact gradient (the
+        face normal on a face, inside the normal cone at an edge or a vertex) and the sign comes from the
+        pseudo-normal within half a voxel diagonal of the surface (so a wall thinner than a voxel has an inside);
+        see :mod:`torchhand.kernels.sdf_surface`. Elsewhere, or for a grid without :attr:`surface`, the grid's
+        trilinear value and normalised gradient. Not differentiable (no autograd graph).
+
+        Args:
+            points: query points, (B, P, 3), mesh frame, metres; same device and dtype as the grid.
+            band: metres; None: ``2 sqrt(3) voxel_size``.
+
+        Returns:
+            sd: signed distance, (B, P), metres, negative inside
+            normal: outward unit normal, (B, P, 3)
+            closest: closest surface point, (B, P, 3), mesh frame
+        """
+        self._check_points(points, False)
+        B, P, _ = points.shape
+        with torch.no_grad():
+            sd, grad = _sdf_impl(self.values, self.origin, float(self.voxel_size), points, True, self.corners)
+            flat = points.reshape(-1, 3)
+            if self.surface is None:
+                n = grad.reshape(-1, 3)
+                n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+                s = sd.reshape(-1)
+                out = (s, n, flat - s[:, None] * n)
+            else:
+                band = 2.0 * math.sqrt(3.0) * self.voxel_size if band is None else float(band)
+                out = query_near_surface(self.values, self.origin, float(self.voxel_size), self.surface, flat,
+                                         sd.reshape(-1), grad.reshape(-1, 3), band)
+        return out[0].view(B, P), out[1].view(B, P, 3), out[2].view(B, P, 3)
 
     def to(self, device: Any = None, dtype: torch.dtype | None = None) -> "SDFGrid":
         """Copy with ``values`` and ``origin`` on ``device`` and cast to ``dtype``."""

@@ -58,7 +58,8 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     an actual contact point, capturing the local features of geometry".
 
     For each fingertip contact (on (N, F), point and normal (N, F, 3) world, normal into the object), four points
-    ``proxy_radius`` away along the surface's tangent directions are projected onto the surface with the SDF; one
+    ``proxy_radius`` away along the surface's tangent directions are projected onto the surface (the grid's exact
+    query near the surface, :meth:`~torchhand.geometry.sdf.SDFGrid.query_surface`); one
     counts where its normal turns by more than acos(``proxy_cos``) from the contact's (an edge or a corner is
     under the pad: on a flat face a proxy would add nothing) and the fingertip's capsule is within ``proxy_dist``
     of it (the pad covers it). The one whose normal turns most is kept. Returns mask (N, F), point (N, F, 3)
@@ -70,12 +71,10 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     n0 = _rotate(T_inv[:, None], normal)
     t1, t2 = tangent_frame(n0 / n0.norm(dim=-1, keepdim=True).clamp_min(1e-9))
     x = p0[:, :, None] + s.proxy_radius * torch.stack([t1, -t1, t2, -t2], 2)    # (N, F, 4, 3)
-    for _ in range(2):                                                      # onto the surface
-        sd, g = problem.sdf.query_with_grad(x.reshape(N, -1, 3))
-        g = g.reshape(x.shape)
-        x = x - sd.reshape(x.shape[:-1])[..., None] * g / g.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    sd, g = problem.sdf.query_with_grad(x.reshape(N, -1, 3))
-    n_in = -(g / g.norm(dim=-1, keepdim=True).clamp_min(1e-9)).reshape(x.shape)
+    sd, g, x = problem.sdf.query_surface(x.reshape(N, -1, 3))               # onto the surface (exact near it)
+    x = x.reshape(N, F, 4, 3)
+    sd, g, _ = problem.sdf.query_surface(x.reshape(N, -1, 3))               # ~0 unless the projection was a grid's
+    n_in = -g.reshape(x.shape)
     cos = (n_in * n0[:, :, None]).sum(-1)                                  # (N, F, 4)
     xw = _transform(T_obj[:, None, None], x)
     T_d = poses[:, dl]                                                      # (N, F, 4, 4)
@@ -91,6 +90,18 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     take = lambda v: v.gather(2, pick[..., None].expand(N, F, 1, 3)).squeeze(2)
     m3 = mask[..., None].to(point.dtype)
     return mask, take(xw) * m3, _rotate(T_obj[:, None], take(n_in)) * m3, take(local) * m3
+
+
+def surface_contacts(problem: SynthesisProblem, t: torch.Tensor, point: torch.Tensor
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Exact signed distance, closest surface point and inward normal of the object at world points ``point``
+    (N, K, 3) of candidates at frames ``t`` (N,): the grid's exact query near the surface
+    (:meth:`~torchhand.geometry.sdf.SDFGrid.query_surface`: the mesh's face normal on a face, the normal cone's
+    direction toward the point at an edge). Returns sd (N, K) metres, surface point (N, K, 3) world, normal
+    (N, K, 3) world, into the object."""
+    sd, normal, closest = problem.sdf.query_surface(_transform(problem.object_inv[t][:, None], point))
+    T = problem.object_pose[t][:, None]
+    return sd, _transform(T, closest), -_rotate(T, normal)
 
 
 def table_depth(problem: SynthesisProblem, hand, poses: torch.Tensor) -> torch.Tensor:

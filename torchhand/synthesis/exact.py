@@ -85,7 +85,7 @@ def capsule_penetration(hand, poses: torch.Tensor, sdf, object_pose: torch.Tenso
     P = poses[:, link]                                                       # (N, P, 4, 4)
     world = (P[..., :3, :3] @ local.unsqueeze(-1)).squeeze(-1) + P[..., :3, 3]
     obj = (object_inv[:, None, :3, :3] @ world.unsqueeze(-1)).squeeze(-1) + object_inv[:, None, :3, 3]
-    sd, grad = sdf.query_with_grad(obj)                                      # (N, P), (N, P, 3)
+    sd, grad, _ = sdf.query_surface(obj)                                     # (N, P), (N, P, 3): exact near it
     depth = (r - sd).view(N, L, n)
     best, idx = depth.max(-1)                                                # (N, L)
     take = lambda x: x.view(N, L, n, -1).gather(2, idx[..., None, None].expand(N, L, 1, x.shape[-1])).squeeze(2)
@@ -104,4 +104,4 @@ def capsule_depth(hand, poses: torch.Tensor, sdf, object_inv: torch.Tensor, axis
     P = poses[:, link]                                                       # (N, P, 4, 4)
     world = (P[..., :3, :3] @ local.unsqueeze(-1)).squeeze(-1) + P[..., :3, 3]
     obj = (object_inv[:, None, :3, :3] @ world.unsqueeze(-1)).squeeze(-1) + object_inv[:, None, :3, 3]
-    return (r - sdf.query(obj)).view(N, L, -1).amax(-1)
+    return (r - sdf.query_surface(obj)[0]).view(N, L, -1).amax(-1)

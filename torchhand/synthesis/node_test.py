@@ -23,9 +23,12 @@ bring them into the object), guided or free; the guiding point stays in the prob
 get one-sided residuals max(0, r + margin - (z - table)), and a link whose capsule reaches more than ``pen_tol``
 below the plane fails its finger (the palm: the hand) in the kinematic test (:func:`table_depth`).
 
-Contacts P: for every link, its surface sample with the smallest signed distance, when that distance is within
-``contact_dist``; the contact point is that sample projected onto the object surface, the normal points into
-the object. The dynamic test (Eqs. 4–8) solves the hand contacts and the object-table contacts together with the
+Contacts P: for every link, its surface sample with the smallest signed distance (the grid's), when that
+sample's exact distance (:meth:`~torchhand.geometry.sdf.SDFGrid.query_surface`: to the mesh's triangles nearest to
+its grid cell) is within ``contact_dist``; the contact point is the closest point of the mesh, the normal the
+mesh's there (a face's normal, or at an edge the normal cone's direction toward the sample), into the object. The
+grid's trilinear normals leaned up to 30 degrees off a mug's faces at its rim and handle, which the final check
+with the mesh's normals then refused. The dynamic test (Eqs. 4–8) solves the hand contacts and the object-table contacts together with the
 friction-cone kernel (float64), sliding contacts restricted to their cone's boundary ray. Deviation: a frame whose
 forces exceed ``max_force`` at any contact (30 N, or 5 times the object's weight) fails: the paper's objective
 prefers small forces but accepts any; grips that balance only by squeezing with 100 N appeared on captured motion
@@ -48,6 +51,7 @@ from ._node_geometry import (
     _transform,
     contact_slots,
     pad_points,
+    surface_contacts,
     table_depth,
 )
 from ._node_kinematics import _hand_kinematic_test
@@ -182,12 +186,13 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
                                                hand.collision_pairs)
         capsule_depth.append(depth)
         capsule_pair.append(lf[hand.collision_pairs] + h * F)                      # (Q, 2)
-        # contacts: each link's closest sample within contact_dist
-        on = (deep <= s.contact_dist) & (deep >= -s.pen_tol)
+        # contacts: each link's closest sample within contact_dist, measured and projected exactly near the surface
+        sd_c, point_c, normal_c = surface_contacts(problem, t, pen.deepest_point)
+        on = (sd_c <= s.contact_dist) & (sd_c >= -s.pen_tol)
         c_mask.append(on)
         c_local.append(hand.sample_points[pen.deepest_index.clamp_min(0)])
-        c_point.append(pen.deepest_point - deep.clamp(-1, 1)[..., None] * pen.deepest_normal)
-        c_normal.append(-pen.deepest_normal)
+        c_point.append(point_c)
+        c_normal.append(normal_c)
         w = torch.ones(N, L, dtype=dtype, device=device) if weights is None else \
             torch.where(lf >= 0, weights[:, h].gather(1, lf.clamp_min(0).expand(N, L)), torch.ones_like(deep))
         link_weight.append(w)
