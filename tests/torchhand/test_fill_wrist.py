@@ -76,3 +76,26 @@ def test_a_tiny_tolerance_bounds_every_frame():
     adj = steady_wrist(wrist, obj, np.ones(120, bool), fps=30.0, tolerance=tol)
     assert adj.translation.max() <= 0.001 + 1e-12 and adj.rotation.max() <= math.radians(0.5) + 1e-9
     assert _relative_step(adj.used, obj).median() < _relative_step(wrist, obj).median()
+
+
+def test_a_steadied_scene_keeps_the_capture_through_files_and_slices(tmp_path):
+    """with_wrist keeps the captured track; it survives the scene directory, with_frames and resample."""
+    import torchhand
+    from torchhand.fill.wrist import with_wrist
+    from torchhand.scene import load_scene
+
+    scene = load_scene("box-turn")
+    side = scene.hands[0].side
+    captured = scene.hands[0].wrist_pose.clone()
+    moved = captured.clone()
+    moved[:, :3, 3] += 0.001
+    s2 = with_wrist(scene, side, moved)
+    assert torch.equal(s2.hands[0].captured_wrist_pose, captured) and torch.equal(s2.hands[0].wrist_pose, moved)
+    s3 = with_wrist(s2, side, captured)                       # moving again keeps the original capture
+    assert torch.equal(s3.hands[0].captured_wrist_pose, captured)
+    back = load_scene(s2.export(tmp_path / "scene"))
+    assert torch.equal(back.hands[0].captured_wrist_pose, captured)
+    assert torch.equal(back.with_frames(3, 9).hands[0].captured_wrist_pose, captured[3:9])
+    assert back.resample(15.0).hands[0].captured_wrist_pose.shape[0] == back.resample(15.0).T
+    assert load_scene("box-turn").hands[0].captured_wrist_pose is None
+    del torchhand

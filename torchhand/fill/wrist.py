@@ -123,9 +123,13 @@ def steady_wrist(wrist: torch.Tensor, object_pose: torch.Tensor, held: np.ndarra
 
 
 def with_wrist(scene, side: str, used: torch.Tensor):
-    """``scene`` with the wrist track of hand ``side`` replaced by ``used (T, 4, 4)``."""
-    hands = tuple(dataclasses.replace(h, wrist_pose=used.to(h.wrist_pose)) if h.side == side else h
-                  for h in scene.hands)
+    """``scene`` with the wrist track of hand ``side`` replaced by ``used (T, 4, 4)``; the track it replaces is kept
+    as ``captured_wrist_pose`` (unless one is kept already: the capture stays the capture)."""
+    def moved(h):
+        captured = h.wrist_pose if h.captured_wrist_pose is None else h.captured_wrist_pose
+        return dataclasses.replace(h, wrist_pose=used.to(h.wrist_pose), captured_wrist_pose=captured)
+
+    hands = tuple(moved(h) if h.side == side else h for h in scene.hands)
     return dataclasses.replace(scene, hands=hands)
 
 

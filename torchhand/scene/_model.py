@@ -150,6 +150,8 @@ class Scene:
         check_transforms(self.object_pose, f"scene '{self.name}': object_pose")
         for h in self.hands:
             check_transforms(h.wrist_pose, f"scene '{self.name}': wrist_pose_{h.side}")
+            if h.captured_wrist_pose is not None:
+                check_transforms(h.captured_wrist_pose, f"scene '{self.name}': captured_wrist_pose_{h.side}")
         if not bool(torch.isfinite(self.gravity).all()):
             raise InputValueError(f"scene '{self.name}': gravity must be finite, got {self.gravity.tolist()}")
         if self.external_wrench is not None:
@@ -173,7 +175,9 @@ class Scene:
         if not 0 <= start < stop <= self.T:
             raise InputValueError(f"start, stop: expected 0 <= start < stop <= T = {self.T}, got {start}, {stop}")
         s = slice(int(start), int(stop))
-        hands = tuple(dataclasses.replace(h, wrist_pose=h.wrist_pose[s].clone()) for h in self.hands)
+        hands = tuple(dataclasses.replace(h, wrist_pose=h.wrist_pose[s].clone(), captured_wrist_pose=None
+                                          if h.captured_wrist_pose is None else h.captured_wrist_pose[s].clone())
+                      for h in self.hands)
         source = None if self.source is None else self.source.shifted(start * self.source.fps / self.fps)
         ext = None if self.external_wrench is None else self.external_wrench[s].clone()
         return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands, source=source,
@@ -189,7 +193,9 @@ class Scene:
         n = int(math.floor(self.duration * fps + 1e-9)) + 1
         times = torch.arange(n, dtype=torch.float64, device=self.object_pose.device) / fps
         src = self.times()
-        hands = tuple(dataclasses.replace(h, wrist_pose=interpolate_poses(h.wrist_pose, src, times))
+        hands = tuple(dataclasses.replace(h, wrist_pose=interpolate_poses(h.wrist_pose, src, times),
+                                          captured_wrist_pose=None if h.captured_wrist_pose is None else
+                                          interpolate_poses(h.captured_wrist_pose, src, times))
                       for h in self.hands)
         ext = None if self.external_wrench is None else _interpolate_linear(self.external_wrench, src, times)
         return dataclasses.replace(self, fps=fps, object_pose=interpolate_poses(self.object_pose, src, times),

@@ -67,6 +67,9 @@ class HandTrack:
             it for a robot hand (docs/hand_model.md, "Mounting without tuning")
         rest: None (the model's own rest pose), "zero" or "relaxed": the rest pose a robot hand starts its
             inverse kinematics from (:func:`torchhand.hand.mount.with_rest`); the mount fit sets it
+        captured_wrist_pose: None, or the wrist track as captured, (T, 4, 4), world, float64, when ``wrist_pose``
+            was moved from it within capture noise (:mod:`torchhand.fill.wrist`); results store it as
+            ``root_pose_captured`` and the checker reports the deviation
     """
 
     side: str
@@ -75,11 +78,15 @@ class HandTrack:
     model: str = "default"
     mount: tuple | None = None
     rest: str | None = None
+    captured_wrist_pose: torch.Tensor | None = None
 
     def __post_init__(self):
         if self.side not in SIDES:
             raise InputValueError(f"HandTrack.side: expected 'right' or 'left', got {self.side!r}")
         _check_pose_tensor(self.wrist_pose, f"HandTrack.wrist_pose ({self.side})")
+        if self.captured_wrist_pose is not None:
+            _check_pose_tensor(self.captured_wrist_pose, f"HandTrack.captured_wrist_pose ({self.side})",
+                               int(self.wrist_pose.shape[0]))
         object.__setattr__(self, "length", _check_number(self.length, "HandTrack.length", low=0.0, strict=True))
         if not isinstance(self.model, str) or not self.model:
             raise InputValueError(f"HandTrack.model: expected 'default' or an MJCF path, got {self.model!r}")

@@ -161,8 +161,10 @@ def load_scene_dir(directory: Path) -> Scene:
         check_transforms(a, f"{traj_path}: {key}")
 
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
+    captured = _read_optional_poses(traj_path, [f"captured_wrist_pose_{h[0]}" for h in hand_specs], T)
     hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model,
-                            mount=None if mount is None else tuple(mount), rest=rest)
+                            mount=None if mount is None else tuple(mount), rest=rest,
+                            captured_wrist_pose=captured.get(f"captured_wrist_pose_{s}"))
                   for s, length, model, mount, rest in hand_specs)
     try:
         source = _read_source(r, doc) if "source" in doc else None
@@ -198,6 +200,19 @@ def _read_source(r: _Reader, doc: dict) -> MocapSource:
                        up_axis=r.get(src, "source", "up_axis", "str", "y"),
                        handedness=r.get(src, "source", "handedness", "str", "right"),
                        hand_rotation=tuple(rotations))
+
+
+def _read_optional_poses(path: Path, keys: list[str], T: int) -> dict[str, torch.Tensor]:
+    """The pose arrays among ``keys`` that the trajectory file holds ((T, 4, 4) each, checked), float64 tensors."""
+    with np.load(path, allow_pickle=False) as data:
+        raw = {k: data[k] for k in keys if k in data.files}
+    out = {}
+    for k, a in raw.items():
+        if a.dtype.kind not in "fiu" or a.shape != (T, 4, 4):
+            raise ShapeError(f"{path}: {k}: expected a numeric array of shape ({T}, 4, 4), got {a.dtype} {a.shape}")
+        out[k] = torch.tensor(a, dtype=torch.float64)
+        check_transforms(out[k], f"{path}: {k}")
+    return out
 
 
 def _read_trajectories(path: Path, keys: list[str], external_flag: bool | None = None

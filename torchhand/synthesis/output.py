@@ -95,6 +95,23 @@ def solution_arrays(result: SynthesisResult, index: int) -> dict:
             out[f"q_{side}"] = f(sol.q[:, h])
             out[f"root_pose_{side}"] = f(p.root[h])
             out[f"guiding_{side}"] = sol.guiding[:, h].cpu().numpy()
+    out.update(captured_roots(result.scene, p.sides))
+    return out
+
+
+def captured_roots(scene, sides) -> dict:
+    """``root_pose_captured`` (the first hand in the order of ``q``: the right one if present) and, with two hands,
+    ``root_pose_captured_<side>``, (T, 4, 4) float64, for hands whose wrist track was moved from the capture
+    (``HandTrack.captured_wrist_pose``); {} when none was."""
+    tracks = {h.side: h for h in scene.hands}
+    if all(tracks[s].captured_wrist_pose is None for s in sides):
+        return {}
+    get = lambda s: (tracks[s].captured_wrist_pose if tracks[s].captured_wrist_pose is not None
+                     else tracks[s].wrist_pose).detach().double().cpu().numpy()
+    first = "right" if "right" in sides else sides[0]
+    out = {"root_pose_captured": get(first)}
+    if len(sides) > 1:
+        out.update({f"root_pose_captured_{s}": get(s) for s in sides})
     return out
 
 
