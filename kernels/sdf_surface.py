@@ -13,7 +13,9 @@ Why
 Query (:func:`surface_query`)
     For each point: the 8 corner nodes of its grid cell give up to 8 candidate triangles; the closest point on each
     is computed exactly (Ericson, Real-Time Collision Detection 5.1.5, with the Voronoi region it lies in: the
-    face, one of its edges or one of its vertices), and the nearest candidate wins.
+    face, one of its edges or one of its vertices), and the nearest candidate wins; then, twice, the winner and the
+    three triangles across its edges compete again (on meshes with triangles about a voxel wide the nearest
+    triangle of a point near the surface is often a neighbour of its corners' nearest).
 
     * distance: ``|p - c|`` to that closest point ``c``. It is the exact distance when the point's nearest triangle
       is among the candidates, which holds for every point whose nearest triangle is also the nearest triangle of
@@ -35,7 +37,7 @@ Query (:func:`surface_query`)
       m, float32) the region's unit pseudo-normal turned toward the triangle's outside side.
 
 Speed
-    8 closest-point tests per point; a caller queries only the points near the surface (contacts, capsule axes).
+    16 closest-point tests per point; a caller queries only the points near the surface (contacts, capsule axes).
 """
 
 from __future__ import annotations
@@ -88,8 +90,23 @@ def closest_point_region(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: t
     return res, region
 
 
+def _nearest(points: torch.Tensor, faces: torch.Tensor, triangles: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Among candidate triangles ``faces (M, C)``, the nearest to each point: (face (M,), closest point (M, 3),
+    region (M,)). Ties: the first candidate."""
+    M, C = faces.shape
+    tri = triangles[faces.reshape(-1)]                                          # (M C, 3, 3)
+    p = points[:, None].expand(M, C, 3).reshape(-1, 3)
+    cp, region = closest_point_region(p, tri[:, 0], tri[:, 1], tri[:, 2])
+    d2 = ((p - cp) ** 2).sum(-1).view(M, C)
+    pick = d2.argmin(-1)[:, None]                                               # (M, 1)
+    closest = cp.view(M, C, 3).gather(1, pick[..., None].expand(M, 1, 3)).squeeze(1)
+    return faces.gather(1, pick).squeeze(1), closest, region.view(M, C).gather(1, pick).squeeze(1)
+
+
 def surface_query(points: torch.Tensor, grid_sd: torch.Tensor, cell_faces: torch.Tensor, triangles: torch.Tensor,
-                  pseudo_normals: torch.Tensor, face_sides: torch.Tensor, sign_band: float
+                  pseudo_normals: torch.Tensor, face_sides: torch.Tensor, sign_band: float,
+                  neighbours: torch.Tensor | None = None, walk: int = 2
                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Exact signed distance, outward normal and closest surface point from candidate triangles.
 
@@ -102,6 +119,8 @@ def surface_query(points: torch.Tensor, grid_sd: torch.Tensor, cell_faces: torch
             normal (region codes of :func:`closest_point_region`)
         face_sides: winding number in front of and behind each triangle, (F, 2) (> 0.5: inside)
         sign_band: distance from the surface within which the sign comes from the pseudo-normal, metres
+        neighbours: optional, the triangles across each triangle's edges AB, BC, CA, (F, 3) long (itself across a
+            boundary edge); the nearest candidate is then compared with its neighbours ``walk`` times
 
     Returns:
         sd: signed distance, (M,), metres, negative inside
@@ -109,16 +128,10 @@ def surface_query(points: torch.Tensor, grid_sd: torch.Tensor, cell_faces: torch
         closest: the closest surface point, (M, 3)
         face: the triangle it lies on, (M,) long
     """
-    M, C = cell_faces.shape
-    tri = triangles[cell_faces.reshape(-1)]                                     # (M C, 3, 3)
-    p = points[:, None].expand(M, C, 3).reshape(-1, 3)
-    cp, region = closest_point_region(p, tri[:, 0], tri[:, 1], tri[:, 2])
-    d2 = ((p - cp) ** 2).sum(-1).view(M, C)
-    best = d2.argmin(-1)                                                        # (M,)
-    pick = best[:, None]
-    closest = cp.view(M, C, 3).gather(1, pick[..., None].expand(M, 1, 3)).squeeze(1)
-    face = cell_faces.gather(1, pick).squeeze(1)
-    reg = region.view(M, C).gather(1, pick).squeeze(1)
+    face, closest, reg = _nearest(points, cell_faces, triangles)
+    if neighbours is not None:
+        for _ in range(walk):   # a step to the edge neighbours of the best candidate, where the nearest may lie
+            face, closest, reg = _nearest(points, torch.cat([face[:, None], neighbours[face]], 1), triangles)
     pn = pseudo_normals[face, reg]                                              # (M, 3)
     diff = points - closest
     dist = diff.norm(dim=-1)

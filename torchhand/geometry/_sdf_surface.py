@@ -33,12 +33,15 @@ class SurfaceTables:
             :func:`torchhand.kernels.sdf_surface.closest_point_region`
         face_sides: winding number just in front of (along the triangle's normal) and behind each triangle, (F, 2):
             which of its sides is inside (above 0.5)
+        neighbours: the triangle across each triangle's edges AB, BC, CA, (F, 3) long (itself across a boundary
+            edge; one of them across an edge shared by more than two)
     """
 
     node_face: torch.Tensor
     triangles: torch.Tensor
     pseudo_normals: torch.Tensor
     face_sides: torch.Tensor
+    neighbours: torch.Tensor
 
 
 def surface_tables(vertices: np.ndarray, faces: np.ndarray, node_face: np.ndarray, face_sides: np.ndarray,
@@ -52,16 +55,18 @@ def surface_tables(vertices: np.ndarray, faces: np.ndarray, node_face: np.ndarra
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
     pn = np.empty((len(f), 7, 3))
     pn[:, 0] = n
-    pn[:, 1:4] = _edge_normals(f, n)
+    pn[:, 1:4], nb = _edge_normals(f, n)
     pn[:, 4:7] = _vertex_normals(v, f, tri, n)[f]
     pn /= np.maximum(np.linalg.norm(pn, axis=-1, keepdims=True), 1e-300)
     return SurfaceTables(node_face=torch.from_numpy(np.ascontiguousarray(node_face, dtype=np.int32)),
                          triangles=torch.from_numpy(tri).to(dtype), pseudo_normals=torch.from_numpy(pn).to(dtype),
-                         face_sides=torch.from_numpy(np.asarray(face_sides, np.float32)).to(dtype))
+                         face_sides=torch.from_numpy(np.asarray(face_sides, np.float32)).to(dtype),
+                         neighbours=torch.from_numpy(nb))
 
 
-def _edge_normals(f: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(F, 3, 3): per face and edge (AB, BC, CA), the sum of the normals of the faces sharing that edge."""
+def _edge_normals(f: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per face and edge (AB, BC, CA): the sum of the normals of the faces sharing that edge, (F, 3, 3), and a face
+    across it, (F, 3) int64 (the face itself on a boundary edge)."""
     a, b = f, np.roll(f, -1, axis=1)                                            # edges (a[:, e], b[:, e])
     key = np.sort(np.stack([a, b], -1).reshape(-1, 2), axis=1)                  # (3F, 2) undirected
     _, inv = np.unique(key, axis=0, return_inverse=True)
@@ -69,7 +74,14 @@ def _edge_normals(f: np.ndarray, n: np.ndarray) -> np.ndarray:
     face_of = np.repeat(np.arange(len(f)), 3)
     total = np.zeros((inv.max() + 1, 3))
     np.add.at(total, inv, n[face_of])
-    return total[inv].reshape(len(f), 3, 3)
+    # the other face of each edge: per edge, the largest and smallest face index using it (one per side of a
+    # manifold edge); a face takes whichever is not itself
+    hi = np.full(inv.max() + 1, -1)
+    lo = np.full(inv.max() + 1, len(f))
+    np.maximum.at(hi, inv, face_of)
+    np.minimum.at(lo, inv, face_of)
+    other = np.where(hi[inv] != face_of, hi[inv], lo[inv])
+    return total[inv].reshape(len(f), 3, 3), other.reshape(len(f), 3).astype(np.int64)
 
 
 def _vertex_normals(v: np.ndarray, f: np.ndarray, tri: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -105,6 +117,6 @@ def query_near_surface(values: torch.Tensor, origin: torch.Tensor, voxel_size: f
     face = tables.node_face[ijk[..., 0], ijk[..., 1], ijk[..., 2]].long()       # (M', 8)
     sign_band = 0.5 * math.sqrt(3.0) * voxel_size
     s, nn, c, _ = surface_query(p, grid_sd[near], face, tables.triangles, tables.pseudo_normals, tables.face_sides,
-                                sign_band)
+                                sign_band, tables.neighbours)
     sd[near], normal[near], closest[near] = s, nn, c
     return sd, normal, closest
