@@ -47,10 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH",
                    help="use this MJCF (.xml) or URDF (.urdf) hand for SIDE instead of the scene's (right=..., "
                         "left=...; docs/hand_model.md)")
-    p.add_argument("--slide-speed", type=float, default=0.02, metavar="M_PER_S",
+    p.add_argument("--slide-speed", type=float, default=None, metavar="M_PER_S",
                    help="a contact held over two frames whose hand point moves faster than this on the object "
-                        "slides (force on its friction cone's boundary); motion capture, whose wrist drifts by "
-                        "millimetres per frame against the object, needs about 0.05 (default 0.02)")
+                        "slides (force on its friction cone's boundary); default: from the capture's own noise "
+                        "for an imported motion capture (printed and recorded in stats.json), 0.02 otherwise")
+    p.add_argument("--wrist-tolerance", default=None, metavar="MM,DEG",
+                   help="how far the wrist may move from an imported capture's track while the hand holds the "
+                        "object (steadied against it; docs/fill.md); default 5,3 for a capture, 0 (fixed, as in "
+                        "the paper) otherwise")
     p.add_argument("--smooth", type=float, default=0.0, metavar="SEC",
                    help="low-pass filter the object and wrist trajectories first (Gaussian, standard deviation "
                         "in seconds; 0.05 suits 30 fps motion capture; default 0: as given)")
@@ -120,10 +124,19 @@ def _check_args(args) -> None:
         raise InputValueError(f"--smooth: expected seconds >= 0, got {args.smooth}")
 
 
+def _prepare(scene, args):
+    """The scene's capture preparation (torchhand.fill.prepare): slide speed, steadied wrists."""
+    from ..fill.prepare import prepare_capture
+    from ..fill.wrist import parse_tolerance
+
+    tol = None if args.wrist_tolerance is None else parse_tolerance(args.wrist_tolerance)
+    return prepare_capture(scene, slide_speed=args.slide_speed, tolerance=tol)
+
+
 def run(args) -> int:
     from ..scene import load_scene
     from ..synthesis.node_test import NodeTestSettings
-    from ..synthesis.output import ResultWriter
+    from ..synthesis.output import ResultWriter, stats_dict
     from ..synthesis.pipeline import synthesize
 
     _check_args(args)
@@ -135,9 +148,13 @@ def run(args) -> int:
         scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
         if args.frames:
             scene = scene.with_frames(*_frames(args.frames, scene.T))
+        prepared = _prepare(scene, args)
+        scene = prepared.scene
     except BaseException:
         writer.abandon()
         raise
+    if prepared.phases or args.slide_speed is not None or args.wrist_tolerance is not None:
+        print(f"{scene.name}: {prepared.describe()}", file=sys.stderr)
     max_nodes = args.max_nodes or None
     bar = Progress("synthesize", disable=args.no_progress)
 
@@ -165,7 +182,7 @@ def run(args) -> int:
                             dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
                             reconstruct=not args.no_reconstruct, max_joint_speed=args.max_joint_speed,
                             keep_unsmoothed=args.keep_unsmoothed, progress=progress, on_solution=on_solution,
-                            node_settings=NodeTestSettings(slide_speed=args.slide_speed),
+                            node_settings=NodeTestSettings(slide_speed=prepared.slide_speed),
                             mount_fit=not args.no_mount_fit)
     except KeyboardInterrupt:
         bar.close()
@@ -176,7 +193,9 @@ def run(args) -> int:
     bar.close()
     if not started:
         writer.start(result.problem, result.scene)
-    out = writer.finish(result, threads=threads)
+    stats = stats_dict(result, threads=threads)
+    stats["capture"] = prepared.to_json()
+    out = writer.complete(stats)
     for fit in result.mount_fits:
         print(fit.describe())
     st = result.stats
@@ -193,8 +212,8 @@ def run(args) -> int:
         budget = f"{max_nodes} node tests" if st.stopped_by == "max_nodes" else f"{args.time_budget:g} s" \
             if st.stopped_by == "time_budget" else "the budget"
         print(f"no feasible motion found within {budget}: the furthest any path got was frame "
-              f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, --slide-speed 0.05 "
-              f"for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
+              f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, a larger --slide-speed "
+              f"or --wrist-tolerance for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
               f"(torchhand inspect {args.scene}).", file=sys.stderr)
         worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
         causes = ("kinematic", "finger-finger", "dynamic")
