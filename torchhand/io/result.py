@@ -66,6 +66,8 @@ class HandSolution:
     joint_names: (D,) str
     root_pose: wrist poses ``T_world_hand``, (T, 4, 4), float64, world, metres
     guiding: guiding-finger flags, (T, F) bool, or None when the file has none
+    root_pose_captured: the wrist track as captured, (T, 4, 4), when the method moved the wrist from it (optional
+        key ``root_pose_captured``), else None
     """
 
     side: str
@@ -73,6 +75,7 @@ class HandSolution:
     joint_names: tuple
     root_pose: np.ndarray
     guiding: np.ndarray | None = None
+    root_pose_captured: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -409,7 +412,11 @@ def _hands(z: _Npz) -> list[HandSolution]:
             hand_side = str(z.scalar("side", "US")) if z.has("side") else "right"
             if hand_side not in SIDES:
                 raise FileFormatError(f"{z.path}: side: expected 'right' or 'left', got {hand_side!r}")
-        hands.append(HandSolution(side=hand_side, q=q, joint_names=jn, root_pose=root, guiding=g))
+        captured = None
+        if z.has(f"root_pose_captured{sfx}") or (side is None and z.has("root_pose_captured")):
+            captured = z.array(f"root_pose_captured{sfx}", (T, 4, 4), "f")
+        hands.append(HandSolution(side=hand_side, q=q, joint_names=jn, root_pose=root, guiding=g,
+                                  root_pose_captured=captured))
     return hands
 
 
