@@ -18,6 +18,7 @@ from .motion import (balance_errors, joint_acceleration, joint_limit_violation, 
 from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
                           pose_hand, table_depth)
 from .report import FIGURES, CheckReport, Figure, SolutionCheck, resolve_limits
+from .wrist import wrist_deviation
 
 __all__ = ["check_result", "check_solution"]
 
@@ -95,7 +96,8 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
     q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier, mass)
     fig.update(joint_figs)
     ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
-    return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered), q_all
+    return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered,
+                         wrist=wrist_deviation(sol)), q_all
 
 
 def _solution_mass(sol: Solution, scene, obj: ObjectMesh) -> tuple[float, ObjectMesh]:

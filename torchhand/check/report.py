@@ -179,12 +179,15 @@ class SolutionCheck:
     index: XXX of sol_XXX.npz; file: its name; frames: T
     figures: figure name -> :class:`Figure`, in :data:`FIGURES` order (a figure that does not apply to the scene,
         e.g. the table without a table or hand-hand with one hand, is absent)
+    wrist: information, no verdict: per hand whose file keeps the captured wrist (``root_pose_captured``), the
+        deviation of the used wrist from it per frame (:func:`torchhand.check.wrist.wrist_deviation`); {} otherwise
     """
 
     index: int
     file: str
     frames: int
     figures: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
+    wrist: dict = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -209,8 +212,11 @@ class SolutionCheck:
         return f"{self.name}: " + "; ".join(parts) if parts else ""
 
     def to_dict(self) -> dict:
-        return {"index": self.index, "file": self.file, "frames": self.frames, "passed": self.passed,
-                "figures": {n: f.to_dict() for n, f in self.figures.items()}}
+        out = {"index": self.index, "file": self.file, "frames": self.frames, "passed": self.passed,
+               "figures": {n: f.to_dict() for n, f in self.figures.items()}}
+        if self.wrist:
+            out["wrist_deviation"] = self.wrist
+        return out
 
 
 def describe(name: str, fig: Figure) -> str:
