@@ -17,10 +17,10 @@ from .motion import (balance_errors, joint_acceleration, joint_limit_violation, 
                      mean_joint_difference)
 from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
                           pose_hand, table_depth)
-from .report import FIGURES, CheckReport, Figure, SolutionCheck, resolve_limits
+from .report import CHECKED_FRAMES, FIGURES, CheckReport, Figure, SolutionCheck, resolve_limits
 from .wrist import wrist_deviation
 
-__all__ = ["check_result", "check_solution"]
+__all__ = ["check_result", "check_solution", "frame_status"]
 
 
 def check_result(directory, *, limits=None, progress: Callable[[str], None] | None = None) -> CheckReport:
@@ -82,6 +82,37 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
     side (T, D_all)) of the solutions before it
     returns: the :class:`SolutionCheck` and this solution's joint angles of all hands side by side
     """
+    status = frame_status(sol)
+    claimed = None if status is None else status != 2
+    token = CHECKED_FRAMES.set(claimed)
+    try:
+        check, q_all = _check_frames(sol, result, obj, limits, earlier, status)
+    finally:
+        CHECKED_FRAMES.reset(token)
+    unsolved = () if claimed is None else tuple(int(t) for t in np.nonzero(~claimed)[0])
+    return dataclasses.replace(check, unsolved=unsolved), q_all
+
+
+def frame_status(sol: Solution) -> np.ndarray | None:
+    """The optional ``frame_status`` of the solution's file, (T,) int8 (0 solved, 1 free hand, 2 unsolved:
+    docs/result_format.md), or None when the file has none (or the solution was not read from a file).
+    Raises FileFormatError naming the file for a wrong shape, dtype or code."""
+    path = Path(sol.path)
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        if "frame_status" not in z.files:
+            return None
+        st = z["frame_status"]
+    if st.shape != (sol.T,) or st.dtype.kind not in "iu":
+        raise FileFormatError(f"{path}: frame_status: expected shape ({sol.T},) of integers, got shape "
+                              f"{tuple(st.shape)} dtype {st.dtype}")
+    if not np.isin(st, (0, 1, 2)).all():
+        raise FileFormatError(f"{path}: frame_status: expected codes 0, 1 or 2, got {sorted(set(st.tolist()))}")
+    return st.astype(np.int8)
+
+
+def _check_frames(sol: Solution, result: Result, obj: ObjectMesh, limits: dict, earlier, status):
     hands: dict[str, PosedHand] = {}
     for hs in sol.hands:
         if hs.side not in result.hand_models:
@@ -93,7 +124,7 @@ def check_solution(sol: Solution, result: Result, obj: ObjectMesh, limits: dict,
     mass, obj = _solution_mass(sol, result.scene, obj)
     fig = _penetration_figures(sol, result.scene, list(hands.values()), obj, limits, files)
     fig.update(_contact_figures(sol, result.scene, hands, obj, limits, files, mass))
-    q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier, mass)
+    q_all, joint_figs = _motion_figures(sol, result.scene, list(hands.values()), obj, limits, earlier, mass, status)
     fig.update(joint_figs)
     ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
     return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered,
@@ -219,7 +250,7 @@ def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: Obj
 
 
 def _motion_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, limits: dict,
-                    earlier, mass: float | None = None) -> tuple[np.ndarray, dict]:
+                    earlier, mass: float | None = None, status: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     mass = scene.object.mass if mass is None else mass
     ext = getattr(scene, "external_wrench", None)
     f_err, t_err = balance_errors(sol, obj, mass, scene.gravity.numpy().astype(np.float64),
@@ -235,7 +266,11 @@ def _motion_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectMesh, 
                          ("joint_speed_rad_s", joint_speed(q_all, sol.fps)),
                          ("joint_acceleration_rad_s2", joint_acceleration(q_all, sol.fps))):
         fig[name] = Figure.worst(name, values, limits[name], lambda t, x: joints[x])
-    same = [(i, mean_joint_difference(q_all, q)) for i, q in earlier if q.shape == q_all.shape]
+    # with a frame_status, distinctness is measured over the frames the method solved (its free-hand frames are
+    # the same rest pose in every variant by design; its unsolved ones are not claimed)
+    rows = np.ones(q_all.shape[0], dtype=bool) if status is None else status == 0
+    same = [(i, mean_joint_difference(q_all[rows], q[rows])) for i, q in earlier
+            if q.shape == q_all.shape and rows.any()]
     if same:
         i, d = min(same, key=lambda x: x[1])
         fig["distinct_deg"] = Figure.make("distinct_deg", d, limits["distinct_deg"], None, f"sol_{i:03d}")

@@ -9,6 +9,7 @@ violations are relative (dimensionless), see :data:`FIGURES`.
 from __future__ import annotations
 
 import math
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
@@ -17,6 +18,11 @@ import numpy as np
 from ..errors import InputTypeError, InputValueError, UnknownNameError
 
 __all__ = ["FIGURES", "LIMITS", "Figure", "SolutionCheck", "CheckReport", "resolve_limits", "format_value"]
+
+
+CHECKED_FRAMES: ContextVar = ContextVar("checked_frames", default=None)
+"""(T,) bool of the solution being checked: frames it claims (a ``frame_status`` other than unsolved); None: all.
+Per-frame figures ignore the other frames (rows of T - 1 or T - 2 differences: those touching one)."""
 
 
 @dataclass(frozen=True)
@@ -161,7 +167,7 @@ class Figure:
         where: callable (frame, column) -> str naming the column
         floor: values below it are reported as it (a clearance is a penetration of 0), None for no floor
         """
-        v = np.asarray(values, dtype=np.float64)
+        v = _checked_rows(np.asarray(values, dtype=np.float64))
         if v.size == 0 or np.isnan(v).all():
             return cls.make(name, 0.0 if floor is None else floor, limit)
         t, x = np.unravel_index(int(np.nanargmax(v)), v.shape)
@@ -172,6 +178,20 @@ class Figure:
         return {"value": self.value, "limit": self.limit, "frame": self.frame, "where": self.where, "ok": self.ok}
 
 
+def _checked_rows(v: np.ndarray) -> np.ndarray:
+    """``v`` (rows per frame, or per pair / triple of consecutive frames) with unclaimed frames' rows NaN."""
+    m = CHECKED_FRAMES.get()
+    if m is None or v.ndim == 0 or m.all():
+        return v
+    T = len(m)
+    rows = {T: m, T - 1: m[:-1] & m[1:], T - 2: m[:-2] & m[1:-1] & m[2:]}.get(v.shape[0])
+    if rows is None:
+        return v
+    v = v.copy()
+    v[~rows] = np.nan
+    return v
+
+
 @dataclass(frozen=True)
 class SolutionCheck:
     """The checked figures of one solution file.
@@ -179,6 +199,7 @@ class SolutionCheck:
     index: XXX of sol_XXX.npz; file: its name; frames: T
     figures: figure name -> :class:`Figure`, in :data:`FIGURES` order (a figure that does not apply to the scene,
         e.g. the table without a table or hand-hand with one hand, is absent)
+    unsolved: frames the file flags unsolved (``frame_status`` 2): not claimed, so not checked, listed apart
     wrist: information, no verdict: per hand whose file keeps the captured wrist (``root_pose_captured``), the
         deviation of the used wrist from it per frame (:func:`torchhand.check.wrist.wrist_deviation`); {} otherwise
     """
@@ -188,6 +209,7 @@ class SolutionCheck:
     frames: int
     figures: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     wrist: dict = field(default_factory=dict)
+    unsolved: tuple = ()
 
     @property
     def passed(self) -> bool:
@@ -216,6 +238,8 @@ class SolutionCheck:
                "figures": {n: f.to_dict() for n, f in self.figures.items()}}
         if self.wrist:
             out["wrist_deviation"] = self.wrist
+        if self.unsolved:
+            out["unsolved_frames"] = list(self.unsolved)
         return out
 
 

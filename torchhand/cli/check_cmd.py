@@ -85,6 +85,9 @@ def run(args) -> int:
     for note in report.notes:
         print(f"note: {note}")
     for s in report.solutions:
+        if s.unsolved:
+            print(f"note: {s.name}: {len(s.unsolved)} of {s.frames} frames flagged unsolved by the method "
+                  f"(frame_status 2: not claimed, not checked): {_ranges(s.unsolved)}")
         for side, d in s.wrist.items():
             print(f"note: {s.name} {side} wrist moved from the capture by median {d['median_translation_mm']:.2f} mm "
                   f"/ {d['median_rotation_deg']:.2f} deg, at most {d['max_translation_mm']:.2f} mm / "
@@ -94,6 +97,18 @@ def run(args) -> int:
     if json_path is not None:
         print(f"wrote {json_path}")
     return 0 if report.passed else 1
+
+
+def _ranges(frames) -> str:
+    """Frame numbers as ranges: "3-7, 12"."""
+    out, start = [], None
+    for i, t in enumerate(frames):
+        if start is None:
+            start = t
+        if i + 1 == len(frames) or frames[i + 1] != t + 1:
+            out.append(f"{start}-{t}" if t > start else f"{start}")
+            start = None
+    return ", ".join(out)
 
 
 def parse_limits(items) -> dict:
