@@ -40,7 +40,7 @@ OPTIONS = {
     "epsilon": _Option("--epsilon", "float", 10.0, 0, strict=True),
     "strategy": _Option("--strategy", "str", "mixed", choices=("static", "sliding", "relocating", "mixed")),
     "frames": _Option("--frames", "frames", None),
-    "slide_speed": _Option("--slide-speed", "float", 0.02, 0, strict=True),
+    "slide_speed": _Option("--slide-speed", "float", None, 0, strict=True),
     "smooth": _Option("--smooth", "float", 0.0, 0),
     "max_joint_speed": _Option("--max-joint-speed", "float", 8.0, 0, strict=True),
     "keep_unsmoothed": _Option("--keep-unsmoothed", "bool", False),
