@@ -37,6 +37,12 @@ def mesh_normals(mesh: trimesh.Trimesh, points: np.ndarray, guess: np.ndarray, e
     points = np.asarray(points, dtype=np.float64)
     guess = np.asarray(guess, dtype=np.float64)
     out = np.zeros_like(points)
+    finite = np.isfinite(points).all(-1) & np.isfinite(guess).all(-1)
+    if not finite.all():    # a non-finite point (a diverged pose) keeps its guess; its frame fails elsewhere
+        out[~finite] = np.nan_to_num(guess[~finite])
+        if finite.any():
+            out[finite] = mesh_normals(mesh, points[finite], guess[finite], edge_tol)
+        return out
     if len(points) == 0:
         return out
     closest, _, tri = trimesh.proximity.closest_point(mesh, points)
