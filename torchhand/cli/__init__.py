@@ -16,8 +16,8 @@ from .._numerics import MODES, pin_for_command
 from ..errors import TorchhandError
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
-_COMMANDS = ("scene", "hand", "inspect", "synthesize", "check", "render", "plot", "splice", "export", "view", "batch",
-             "capture", "grasp", "manipulate", "numerics")
+_COMMANDS = ("scene", "hand", "inspect", "synthesize", "fill", "check", "render", "plot", "splice", "export", "view",
+             "batch", "capture", "grasp", "manipulate", "numerics")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,227 @@
+"""``torchhand fill``: finger motion for every frame of a whole capture.
+
+Steps, each a pure stage over typed state:
+
+1. prepare (:func:`torchhand.fill.prepare.prepare_capture`): phases per hand, the wrists steadied within capture
+   noise;
+2. plan (:func:`torchhand.fill.windows.plan_windows`): overlapping windows over the contact phases (of any hand);
+3. search (:func:`run_window`): each window is an independent :func:`~torchhand.synthesis.pipeline.synthesize`
+   with its own seed and the slide speed of its own noise (unless given); ``jobs`` windows run at once in separate
+   processes (the same results: node budgets, one thread each);
+4. stitch (:mod:`torchhand.fill.stitch`): variant v starts from solution v of the first window of each contact
+   phase and takes, in each next window, the solution closest to it over their overlap; windows without a
+   solution leave their frames to the free-hand transitions;
+5. settle and evaluate (:func:`torchhand.fill.fill.finish`): the stitched motion is smoothed once by the synthesis'
+   reconstruction, then the whole motion goes through the synthesis' final test (contacts, exact normals, forces with
+   the table, the sliding rule) frame by frame; ``frame_status`` per frame: 0 solved (in a solved window, passes),
+   1 free hand (no window, passes: transitions, rest), 2 unsolved (fails: not claimed; the checker lists these
+   frames apart);
+6. write: the result directory (docs/result_format.md) of the whole scene with one solution per variant, and
+   ``phases.json`` (phases, windows with status, time, node tests and, for failed windows, the search's rejection
+   summary).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputValueError
+from .fill import FRAME_FREE, FRAME_SOLVED, FRAME_UNSOLVED, finish, hand_phases, union_phases
+from .phases import Phase, format_phases
+from .windows import Window, plan_windows
+
+__all__ = ["FillSettings", "WindowRun", "FillResult", "fill_capture", "run_window", "FRAME_SOLVED", "FRAME_FREE",
+           "FRAME_UNSOLVED"]
+
+
+
+@dataclass(frozen=True)
+class FillSettings:
+    """variants: solutions per window and written motions; window, overlap: frames; max_nodes: node tests per
+    window; seed: the run's seed; jobs: windows searched at once (processes); slide_speed: m/s or None (each
+    window's noise); tolerance: :class:`~torchhand.fill.wrist.WristTolerance` or None (5 mm, 3 degrees);
+    max_joint_speed: rad/s."""
+
+    variants: int = 3
+    window: int = 60
+    overlap: int = 15
+    max_nodes: int = 30000
+    seed: int = 0
+    jobs: int = 1
+    slide_speed: float | None = None
+    tolerance: object = None
+    max_joint_speed: float = 8.0
+
+    def __post_init__(self):
+        for name in ("variants", "max_nodes", "jobs", "window", "overlap"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InputValueError(f"{name}: expected an integer >= 1, got {v!r}")
+        if self.overlap < 2 or self.window < 3 * self.overlap:
+            raise InputValueError(f"window, overlap: expected overlap >= 2 and window >= 3 x overlap (a frame in at "
+                                  f"most two windows), got window {self.window}, overlap {self.overlap}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise InputValueError(f"seed: expected an integer, got {self.seed!r}")
+        for name in ("slide_speed", "max_joint_speed"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputValueError(f"{name}: expected a positive number, got {v!r}")
+
+
+@dataclass
+class WindowRun:
+    """What one window's search gave: q per solution (frames, H, D), status, node tests, seconds, slide speed,
+    and the search's figures (rejections, deepest frame, paths not written)."""
+
+    window: Window
+    qs: list
+    status: str
+    nodes: int
+    time_s: float
+    slide_speed: float
+    summary: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {**self.window.to_json(), "status": self.status, "solutions": len(self.qs), "node_tests": self.nodes,
+                "time_s": round(self.time_s, 2), "slide_speed": self.slide_speed, **self.summary}
+
+
+@dataclass
+class FillResult:
+    """out: the result directory; phases: per side; windows: the :class:`WindowRun` of each window;
+    frame_status: (V, T) int8; coverage: fraction of contact-phase frames solved (of the best variant)."""
+
+    out: Path
+    phases: dict
+    windows: list
+    frame_status: np.ndarray
+    coverage: float
+    time_s: float
+
+
+def run_window(scene, window: Window, settings: FillSettings, phases=None) -> WindowRun:
+    """The independent search of one window (picklable arguments: runs in a worker process as well). phases: the
+    window's own phases (frames of the window), whose contact frames measure its noise when
+    ``settings.slide_speed`` is None (default: every frame)."""
+    from ..synthesis.node_test import NodeTestSettings
+    from ..synthesis.pipeline import synthesize
+    from .noise import capture_noise
+
+    t0 = time.perf_counter()
+    sub = scene.with_frames(window.start, window.stop)
+    slide = settings.slide_speed
+    if slide is None:
+        held = phases or (Phase("contact", 0, sub.T),)
+        slide = max(capture_noise(sub, h.side, held).slide_speed for h in sub.hands)
+    res = synthesize(sub, solutions=settings.variants, max_nodes=settings.max_nodes, seed=window.seed,
+                     node_settings=NodeTestSettings(slide_speed=slide), max_joint_speed=settings.max_joint_speed,
+                     mount_fit=False)
+    st = res.stats
+    summary = {"rejections": dict(st.rejections), "deepest_frame": st.deepest_frame, "paths_found": st.paths_found,
+               "not_written": dataclasses.asdict(res.excluded)}
+    qs = [f.q.detach().double().cpu() for f in res.finals]
+    return WindowRun(window, qs, "solved" if qs else "failed", st.nodes_tested, time.perf_counter() - t0,
+                     float(slide), summary)
+
+
+def clip_phases(phases, start: int, stop: int) -> tuple:
+    """The phases within frames ``[start, stop)``, renumbered from 0."""
+    return tuple(Phase(p.kind, max(p.start, start) - start, min(p.stop, stop) - start) for p in phases
+                 if p.stop > start and p.start < stop)
+
+
+def _search(scene, windows, settings: FillSettings, progress, phases=()) -> list[WindowRun]:
+    own = {w.index: clip_phases(phases, w.start, w.stop) or None for w in windows}
+    if settings.jobs == 1 or len(windows) <= 1:
+        runs = []
+        for w in windows:
+            runs.append(run_window(scene, w, settings, own[w.index]))
+            _report(progress, runs[-1], len(windows))
+        return runs
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    done: dict[int, WindowRun] = {}
+    with cf.ProcessPoolExecutor(max_workers=settings.jobs, mp_context=mp.get_context("spawn"),
+                                initializer=torch.set_num_threads, initargs=(1,)) as pool:   # one thread each
+        futures = {pool.submit(run_window, scene, w, settings, own[w.index]): w.index for w in windows}
+        for fut in cf.as_completed(futures):
+            run = fut.result()
+            done[run.window.index] = run
+            _report(progress, run, len(windows))
+    return [done[w.index] for w in windows]
+
+
+def _report(progress, run: WindowRun, n: int) -> None:
+    if progress is not None:
+        w = run.window
+        progress(f"window {w.index + 1}/{n} frames {w.start}-{w.stop - 1}: {run.status}, {len(run.qs)} solution(s), "
+                 f"{run.nodes} node tests, {run.time_s:.0f} s, slide speed {run.slide_speed:.3g} m/s")
+
+
+def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, window: int = 60, overlap: int = 15,
+                 max_nodes: int = 30000, seed: int = 0, phases=None, slide_speed: float | None = None,
+                 progress=None, overwrite: bool = False, tolerance=None, jobs: int = 1,
+                 max_joint_speed: float = 8.0) -> FillResult:
+    """Finger motion for every frame of ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene name or a
+    scene directory), written as the result directory ``out`` (docs/fill.md).
+
+    side: the hand whose phases set the windows (None: all hands'); variants: motions written (at most the most
+    solutions any window found); window, overlap: frames (:func:`~torchhand.fill.windows.plan_windows`);
+    max_nodes: node tests per window; seed: the main seed (each window's is derived from it); phases: the phases
+    of ``side`` (or the first hand) instead of :func:`~torchhand.fill.phases.segment_phases`'; slide_speed: m/s or
+    None (a capture's own noise, 0.02 for other scenes); progress: callable(line) or None; overwrite: replace an
+    earlier result directory; tolerance: the wrist tolerance of a capture
+    (:class:`~torchhand.fill.wrist.WristTolerance`, None: 5 mm, 3 degrees); jobs: windows searched at once
+    (processes); max_joint_speed: rad/s.
+    Raises InputValueError (one line) for bad input or an output directory that may not be written, before any
+    work.
+    """
+    from ..scene import Scene, load_scene
+    from ..synthesis.mount_fit import fit_mounts
+    from ..synthesis.output import ResultWriter
+    from .prepare import DEFAULT_SLIDE_SPEED, is_capture, prepare_capture
+
+    settings = FillSettings(variants=variants, window=window, overlap=overlap, max_nodes=max_nodes, seed=seed,
+                            jobs=jobs, slide_speed=slide_speed, tolerance=tolerance, max_joint_speed=max_joint_speed)
+    t0 = time.perf_counter()
+    writer = ResultWriter(out, overwrite=overwrite)           # validated before any work: nothing is lost
+    try:
+        if not isinstance(scene, Scene):
+            scene = load_scene(scene)
+        if any(t.model != "default" and t.mount is None for t in scene.hands):
+            scene, _ = fit_mounts(scene)               # a robot hand is mounted once, for every window alike
+        given = settings.slide_speed
+        source = "option" if given is not None else "capture noise (per window)" if is_capture(scene) else "default"
+        # a capture's windows measure their own noise (torchhand.fill.noise); other scenes keep the default
+        slide = given if given is not None else None if is_capture(scene) else DEFAULT_SLIDE_SPEED
+        prepared = prepare_capture(scene, slide_speed=slide or DEFAULT_SLIDE_SPEED, tolerance=settings.tolerance,
+                                   phases=hand_phases(scene, side, phases))
+        settings = dataclasses.replace(settings, slide_speed=slide)
+    except BaseException:
+        writer.abandon()
+        raise
+    say = progress or (lambda line: None)
+    for s, ph in prepared.phases.items():
+        say(f"{s} hand phases:\n{format_phases(ph, scene.fps)}")
+    say(f"slide speed: {source}" + (f", {settings.slide_speed:.3g} m/s" if settings.slide_speed else ""))
+    for line in prepared.describe().split("; ")[1:]:
+        say(line)
+    chosen = {s: ph for s, ph in prepared.phases.items() if side is None or s == side}
+    phases = union_phases(chosen, scene.T)
+    windows = plan_windows(phases, scene.T, window=settings.window, overlap=settings.overlap, seed=settings.seed)
+    say(f"{len(windows)} window(s) of up to {settings.window} frames over "
+        f"{sum(p.frames for p in phases if p.kind == 'contact')} contact frames")
+    runs = _search(prepared.scene, windows, settings, say, phases)
+    out, status, coverage = finish(prepared, phases, runs, settings, writer, t0, say, source)
+    return FillResult(out=out, phases=prepared.phases, windows=runs, frame_status=status, coverage=coverage,
+                      time_s=time.perf_counter() - t0)
+
+
