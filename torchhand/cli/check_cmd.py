@@ -81,7 +81,10 @@ def run(args) -> int:
         print(f"FAIL: {report.path} has no solutions to check ({run_kind})")
         return 1
     verdict = "PASS" if report.passed else "FAIL"
-    print(f"{verdict}: {ok} of {n} solutions pass ({run_kind}, scene {report.scene})")
+    flagged = sum(len(s.unsolved) for s in report.solutions)
+    claimed = "" if not flagged else (f" on the frames they claim; {flagged} of "
+                                      f"{sum(s.frames for s in report.solutions)} frames flagged unsolved, not checked")
+    print(f"{verdict}: {ok} of {n} solutions pass ({run_kind}, scene {report.scene}){claimed}")
     for note in report.notes:
         print(f"note: {note}")
     for s in report.solutions:
