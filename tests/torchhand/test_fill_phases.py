@@ -12,8 +12,8 @@ import torch
 from tests.conftest import shared_data_dir
 from torchhand.errors import InputValueError
 from torchhand.fill.noise import SLIDE_SPEED_RANGE, capture_noise
-from torchhand.fill.phases import (PHASE_KINDS, Phase, PhaseSettings, format_phases, phases_from_signals,
-                                   segment_phases)
+from torchhand.fill.phases import (PHASE_KINDS, Phase, PhaseSettings, format_phases, hand_object_distance,
+                                   phases_from_signals, segment_phases)
 
 MUG = shared_data_dir() / "mocap" / "manipnet" / "mug1"
 needs_mug = pytest.mark.skipif(not (MUG / "rightHand.bvh").is_file(),
@@ -105,3 +105,43 @@ def test_noise_gives_the_slide_speed_tuned_by_hand_and_grows_with_jitter(mug):
     assert SLIDE_SPEED_RANGE[0] <= more.slide_speed <= SLIDE_SPEED_RANGE[1]
     none = capture_noise(seg, "right", (Phase("free", 0, seg.T),))
     assert none.slide_speed == SLIDE_SPEED_RANGE[0] and none.frames == 0
+
+
+def _box_scene(wrist_x: np.ndarray, object_x: np.ndarray | None = None):
+    """A 10 cm cube at the origin (or moving along x by ``object_x``) and a right hand with the identity rotation
+    whose grasp centre ``(0.6 L, 0, -0.04)`` lies at ``(wrist_x + 0.6 L, 0, 0)``: its distance to the cube is
+    ``-0.05 - (wrist_x + 0.6 L)`` while it is left of the cube."""
+    import trimesh
+
+    from torchhand.geometry.objects import RigidObject
+    from torchhand.scene import HandTrack, Scene
+
+    T, L = len(wrist_x), 0.19
+    W = torch.eye(4, dtype=torch.float64).repeat(T, 1, 1)
+    W[:, 0, 3] = torch.as_tensor(wrist_x)
+    W[:, 2, 3] = 0.04
+    O = torch.eye(4, dtype=torch.float64).repeat(T, 1, 1)
+    if object_x is not None:
+        O[:, 0, 3] = torch.as_tensor(object_x)
+    box = RigidObject.from_trimesh(trimesh.creation.box(extents=(0.1, 0.1, 0.1)), mass=0.2, name="box")
+    return Scene(name="box", object=box, object_pose=O, fps=30.0, hands=(HandTrack("right", W, length=L),),
+                 friction=0.8)
+
+
+def test_distance_and_phases_on_a_synthetic_scene():
+    """The distance is the exact one of the grasp centre; a still cube and a far hand: all free; the hand kept 1 cm
+    off the cube: all contact; a far hand while the cube moves: still free (someone else moves it)."""
+    L, T = 0.19, 40
+    far = _box_scene(np.full(T, -0.05 - 0.6 * L - 0.2))
+    np.testing.assert_allclose(hand_object_distance(far, "right"), 0.2, atol=1e-9)
+    assert segment_phases(far, "right") == (Phase("free", 0, T),)
+    near = _box_scene(np.full(T, -0.05 - 0.6 * L - 0.01))
+    np.testing.assert_allclose(hand_object_distance(near, "right"), 0.01, atol=1e-9)
+    assert segment_phases(near, "right") == (Phase("contact", 0, T),)
+    moving = _box_scene(np.full(T, -0.05 - 0.6 * L - 0.3), object_x=np.linspace(0.0, 0.2, T))
+    assert segment_phases(moving, "right") == (Phase("free", 0, T),)
+    # the hand comes in, stays 2 s within 1 cm, and leaves: approach, contact, release around one contact phase
+    d = np.r_[np.linspace(0.3, 0.01, 30), np.full(60, 0.01), np.linspace(0.01, 0.3, 30)]
+    ph = segment_phases(_box_scene(-0.05 - 0.6 * L - d), "right")
+    _check_cover(ph, len(d))
+    assert [p.kind for p in ph] == ["free", "approach", "contact", "release", "free"]

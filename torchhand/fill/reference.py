@@ -136,8 +136,8 @@ def solution_fingertips(hand_model, q, root_pose) -> np.ndarray:
         root_pose: wrist poses ``T_world_hand``, (T, 4, 4), world, metres (array or tensor)
     """
     model = hand_model.to("cpu", torch.float64)
-    q = torch.as_tensor(np.asarray(q, dtype=np.float64))
-    root = torch.as_tensor(np.asarray(root_pose, dtype=np.float64))
+    q, root = (x.detach().cpu().double() if isinstance(x, torch.Tensor) else torch.tensor(np.asarray(x, np.float64))
+               for x in (q, root_pose))
     if q.dim() != 2 or q.shape[1] != model.num_joints:
         raise ShapeError(f"q: expected (T, {model.num_joints}) joint angles, got {tuple(q.shape)}")
     if tuple(root.shape) != (q.shape[0], 4, 4):
