@@ -14,7 +14,7 @@ import torch
 
 from .._atomic import atomic_json
 from ..errors import InputValueError
-from .phases import PHASE_KINDS, Phase
+from .phases import PHASE_KINDS, Phase, phases_from_codes
 from .stitch import stitch_variants
 
 __all__ = ["FRAME_SOLVED", "FRAME_FREE", "FRAME_UNSOLVED", "finish", "hand_phases", "union_phases"]
@@ -32,12 +32,7 @@ def union_phases(phases: dict, T: int) -> tuple[Phase, ...]:
             code = PHASE_KINDS.index(p.kind)
             seg = kind[p.start:p.stop]
             kind[p.start:p.stop] = np.where(code == 2, 2, np.where(seg == 2, 2, np.maximum(seg, code)))
-    out, start = [], 0
-    for t in range(1, T + 1):
-        if t == T or kind[t] != kind[start]:
-            out.append(Phase(PHASE_KINDS[int(kind[start])], start, t))
-            start = t
-    return tuple(out)
+    return phases_from_codes(kind)
 
 
 def hand_phases(scene, side: str | None, given) -> dict:

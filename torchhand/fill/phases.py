@@ -140,6 +140,12 @@ def phases_from_signals(d: np.ndarray, speed: np.ndarray, fps: float,
         while t < min(T, stop + m) and kind[t] == 0 and near[t]:
             kind[t] = 3
             t += 1
+    return phases_from_codes(kind)
+
+
+def phases_from_codes(kind: np.ndarray) -> tuple[Phase, ...]:
+    """The runs of per-frame codes (T,) (indices into :data:`PHASE_KINDS`) as phases."""
+    T = len(kind)
     out, start = [], 0
     for t in range(1, T + 1):
         if t == T or kind[t] != kind[start]:
