@@ -135,3 +135,76 @@ def test_solution_fingertips_of_the_built_in_hand():
 
 def test_contact_distance_default_is_documented():
     assert 0.0 < CONTACT_DISTANCE <= 0.03
+
+
+@needs_mug
+def test_reference_report_writes_figures_and_a_plot_per_motion(mug, tmp_path):
+    """reference_report on two motions of a mug clip (the rest pose, and the rest pose with the fingers curled):
+    a summary per motion in stats form, a PNG each, the frame selection honoured; a model without the five named
+    fingers is not compared."""
+    from torchhand.fill.reference import reference_report
+    from torchhand.hand.mount import track_hand
+
+    clip = mug.with_frames(620, 650)
+    hand = track_hand(clip.hands[0]).to("cpu", torch.float64)
+    rest = hand.q_rest.double().expand(clip.T, -1)[:, None]                  # (T, H=1, D)
+    lim = hand.joint_limits.double()
+    curled = torch.minimum(torch.maximum(rest + 0.6, lim[:, 0]), lim[:, 1])
+    roots = clip.hands[0].wrist_pose.double()[None]                          # (H, T, 4, 4)
+    frames = [np.ones(clip.T, bool), np.arange(clip.T) < 10]
+    rep = reference_report(clip, [hand], [(rest, roots), (curled, roots)], tmp_path, frames=frames)
+    rows = rep["right"]
+    assert [r["frames"] for r in rows] == [30, 10]
+    assert rows[0]["tip_distance_mm"]["median"] != rows[1]["tip_distance_mm"]["median"]
+    for r in rows:
+        assert 0 < r["tip_distance_mm"]["median"] <= r["tip_distance_mm"]["p90"] < 300
+        assert 0 <= r["contact_agreement"] <= 1
+    for v in (0, 1):
+        png = tmp_path / f"fingers_right_sol_{v:03d}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    other = dataclasses.replace(hand, finger_names=("a", "b", "c", "d", "e"))
+    assert reference_report(clip, [other], [(rest, roots)], tmp_path / "none", plot=False) == {}
+
+
+@needs_mug
+def test_fit_recovers_fingertips_of_a_known_pose(mug, monkeypatch):
+    """The fit of torchhand.fill.captured reaches fingertip targets that a known pose of the model makes (targets
+    standing in for the capture's): median within 0.1 mm (the rest-pose pull keeps it off zero), every finger within
+    2 mm (a redundant chain may end a step budget short of its target), inside the joint limits."""
+    import torchhand.fill.captured as captured
+    from torchhand.hand.mount import track_hand
+
+    clip = mug.with_frames(620, 630)
+    hand = track_hand(clip.hands[0]).to("cpu", torch.float64)
+    lim = hand.joint_limits.double()
+    g = torch.Generator().manual_seed(0)
+    q_true = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * (0.3 + 0.4 * torch.rand(clip.T, lim.shape[0], generator=g,
+                                                                           dtype=torch.float64))
+    root = clip.hands[0].wrist_pose.double()
+    goal = solution_fingertips(hand, q_true, root)
+    monkeypatch.setattr(captured, "captured_fingertips", lambda scene, side: goal)
+    fit = captured.fit_captured_fingers(clip, "right", hand)
+    assert np.nanmedian(fit.residual) < 1e-4 and np.nanmax(fit.residual) < 2e-3, \
+        f"median {1e3 * np.nanmedian(fit.residual):.3f} mm, largest {1e3 * np.nanmax(fit.residual):.2f} mm"
+    assert bool(((fit.q >= lim[:, 0] - 1e-12) & (fit.q <= lim[:, 1] + 1e-12)).all())
+
+
+@needs_mug
+def test_captured_fingers_as_a_solution_file(mug, tmp_path):
+    """write_captured on a mug clip: a solution file the reader accepts, the built-in hand within ~1 cm of the
+    captured finger ends (median), no contacts; a robot-like model without the five fingers is refused."""
+    from torchhand.fill.captured import fit_captured_fingers
+    from torchhand.fill.reference import write_captured
+    from torchhand.hand.mount import track_hand
+    from torchhand.io.result import load_solution
+
+    clip = mug.with_frames(620, 650)
+    hand = track_hand(clip.hands[0])
+    info = write_captured(clip, "right", hand, clip.hands[0].wrist_pose, tmp_path)
+    assert info["file"] == "captured_right.npz" and info["residual_mm"]["median"] < 12
+    sol = load_solution(tmp_path / "captured_right.npz")
+    assert sol.T == 30 and sol.hands[0].side == "right" and sol.hands[0].q.shape == (30, hand.num_joints)
+    assert not sol.contact_mask.any() and not sol.reconstructed
+    np.testing.assert_array_equal(sol.object_pose, clip.object_pose.numpy())
+    with pytest.raises(InputValueError, match="fingers"):
+        fit_captured_fingers(clip, "right", dataclasses.replace(hand, finger_names=("a", "b", "c", "d", "e")))

@@ -18,7 +18,7 @@ from .motion import (balance_errors, joint_acceleration, joint_limit_violation, 
 from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
                           pose_hand, table_depth)
 from .report import CHECKED_FRAMES, FIGURES, CheckReport, Figure, SolutionCheck, resolve_limits
-from .wrist import wrist_deviation
+from .wrist import object_deviation, wrist_deviation
 
 __all__ = ["check_result", "check_solution", "frame_status"]
 
@@ -128,7 +128,7 @@ def _check_frames(sol: Solution, result: Result, obj: ObjectMesh, limits: dict, 
     fig.update(joint_figs)
     ordered = MappingProxyType({n: fig[n] for n in FIGURES if n in fig})
     return SolutionCheck(index=sol.index, file=Path(sol.path).name, frames=sol.T, figures=ordered,
-                         wrist=wrist_deviation(sol)), q_all
+                         wrist=wrist_deviation(sol), object=object_deviation(sol)), q_all
 
 
 def _solution_mass(sol: Solution, scene, obj: ObjectMesh) -> tuple[float, ObjectMesh]:

@@ -202,6 +202,8 @@ class SolutionCheck:
     unsolved: frames the file flags unsolved (``frame_status`` 2): not claimed, so not checked, listed apart
     wrist: information, no verdict: per hand whose file keeps the captured wrist (``root_pose_captured``), the
         deviation of the used wrist from it per frame (:func:`torchhand.check.wrist.wrist_deviation`); {} otherwise
+    object: information likewise for a file that keeps the captured object track (``object_pose_captured``)
+        (:func:`torchhand.check.wrist.object_deviation`); {} otherwise
     """
 
     index: int
@@ -210,6 +212,7 @@ class SolutionCheck:
     figures: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     wrist: dict = field(default_factory=dict)
     unsolved: tuple = ()
+    object: dict = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -238,6 +241,8 @@ class SolutionCheck:
                "figures": {n: f.to_dict() for n, f in self.figures.items()}}
         if self.wrist:
             out["wrist_deviation"] = self.wrist
+        if self.object:
+            out["object_deviation"] = self.object
         if self.unsolved:
             out["unsolved_frames"] = list(self.unsolved)
         return out

@@ -95,6 +95,11 @@ def run(args) -> int:
             print(f"note: {s.name} {side} wrist moved from the capture by median {d['median_translation_mm']:.2f} mm "
                   f"/ {d['median_rotation_deg']:.2f} deg, at most {d['max_translation_mm']:.2f} mm / "
                   f"{d['max_rotation_deg']:.2f} deg ({d['frames_moved']} frames; per frame in --json)")
+        if s.object:
+            d = s.object
+            print(f"note: {s.name} object moved from the capture by median {d['median_translation_mm']:.2f} mm / "
+                  f"{d['median_rotation_deg']:.2f} deg, at most {d['max_translation_mm']:.2f} mm / "
+                  f"{d['max_rotation_deg']:.2f} deg ({d['frames_moved']} frames; per frame in --json)")
     for line in report.failures:
         print(line)
     if json_path is not None:

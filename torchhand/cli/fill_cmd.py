@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "is not a capture)")
     p.add_argument("--wrist-tolerance", default=None, metavar="MM,DEG",
                    help="how far a capture's wrist may move while it holds the object (default 5,3; 0 keeps it)")
+    p.add_argument("--object-as-captured", action="store_true",
+                   help="keep the capture's object track as is (default: put on the table where it stands and held "
+                        "still where it rests, within capture noise)")
     p.add_argument("--jobs", type=int, default=1, help="windows searched at once, in processes (default 1)")
     add_threads_argument(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
@@ -73,7 +76,7 @@ def run(args) -> int:
         result = fill_capture(args.scene, args.out, side=args.side, variants=args.variants, window=args.window,
                               overlap=args.overlap, max_nodes=args.max_nodes, seed=args.seed,
                               slide_speed=args.slide_speed, tolerance=tolerance, jobs=args.jobs, progress=say,
-                              overwrite=args.overwrite)
+                              overwrite=args.overwrite, steady_object=not args.object_as_captured)
     except KeyboardInterrupt:
         print(f"torchhand: interrupted; nothing complete was written to {args.out} (an earlier result there is "
               f"kept whole)", file=sys.stderr)

@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="how far the wrist may move from an imported capture's track while the hand holds the "
                         "object (steadied against it; docs/fill.md); default 5,3 for a capture, 0 (fixed, as in "
                         "the paper) otherwise")
+    p.add_argument("--object-as-captured", action="store_true",
+                   help="keep an imported capture's object track as is (default: put on the table where it stands "
+                        "and held still where it rests, within capture noise; docs/fill.md)")
     p.add_argument("--smooth", type=float, default=0.0, metavar="SEC",
                    help="low-pass filter the object and wrist trajectories first (Gaussian, standard deviation "
                         "in seconds; 0.05 suits 30 fps motion capture; default 0: as given)")
@@ -125,16 +128,20 @@ def _check_args(args) -> None:
 
 
 def _prepare(scene, args):
-    """The scene's capture preparation (torchhand.fill.prepare): slide speed, steadied wrists."""
+    """The scene's capture preparation (torchhand.fill.prepare): slide speed, steadied wrists and object."""
+    from ..fill.object_rest import ObjectRest
     from ..fill.prepare import prepare_capture
     from ..fill.wrist import parse_tolerance
 
     tol = None if args.wrist_tolerance is None else parse_tolerance(args.wrist_tolerance)
-    return prepare_capture(scene, slide_speed=args.slide_speed, tolerance=tol)
+    return prepare_capture(scene, slide_speed=args.slide_speed, tolerance=tol,
+                           object_rest=None if args.object_as_captured else ObjectRest())
 
 
 def run(args) -> int:
     from ..scene import load_scene
+    from ..fill.prepare import is_capture
+    from ..fill.reference import result_reference
     from ..synthesis.node_test import NodeTestSettings
     from ..synthesis.output import ResultWriter, stats_dict
     from ..synthesis.pipeline import synthesize
@@ -182,7 +189,9 @@ def run(args) -> int:
                             dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
                             reconstruct=not args.no_reconstruct, max_joint_speed=args.max_joint_speed,
                             keep_unsmoothed=args.keep_unsmoothed, progress=progress, on_solution=on_solution,
-                            node_settings=NodeTestSettings(slide_speed=prepared.slide_speed),
+                            node_settings=NodeTestSettings(slide_speed=prepared.slide_speed,
+                                                           table_slide_speed=prepared.slide_speed if is_capture(scene)
+                                                           else 1e-3),
                             mount_fit=not args.no_mount_fit)
     except KeyboardInterrupt:
         bar.close()
@@ -195,6 +204,10 @@ def run(args) -> int:
         writer.start(result.problem, result.scene)
     stats = stats_dict(result, threads=threads)
     stats["capture"] = prepared.to_json()
+    reference = result_reference(result, writer.stage)
+    if reference is not None:
+        stats["reference"] = reference
+        _say_reference(scene.name, reference)
     out = writer.complete(stats)
     for fit in result.mount_fits:
         print(fit.describe())
@@ -224,3 +237,19 @@ def run(args) -> int:
             print(f"most rejections at {where} (stats.json: rejections_by_frame).", file=sys.stderr)
     print(f"wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {n} solution(s) in {out}/solutions/")
     return 0 if n else 1
+
+
+def _say_reference(name: str, reference: dict) -> None:
+    """One stderr line per hand: the synthesized fingers against the captured ones (stats.json "reference")."""
+    if "error" in reference:
+        print(f"{name}: captured fingers not compared: {reference['error']}", file=sys.stderr)
+        return
+    for side, entry in reference.items():
+        rows = entry["motions"]
+        med = [r["tip_distance_mm"]["median"] for r in rows if r["frames"]]
+        agree = [r["contact_agreement"] for r in rows if r["frames"]]
+        if med:
+            print(f"{name}: {side} fingertips vs the captured ones: median distance {min(med):.1f}-{max(med):.1f} mm, "
+                  f"contact sets agree on {100 * min(agree):.0f}-{100 * max(agree):.0f} % of frames "
+                  f"(stats.json reference, fingers_{side}_sol_*.png; the captured fingers: "
+                  f"{entry['captured_fit']['file']})", file=sys.stderr)

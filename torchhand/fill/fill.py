@@ -58,6 +58,7 @@ def finish(prepared, phases, runs, settings, writer, t0: float, say, source: str
     settings: the run's settings (:mod:`torchhand.fill.run`). Returns (the directory, frame_status (V, T) int8,
     coverage)."""
     from ..synthesis.node_test import NodeTestSettings
+    from .prepare import is_capture
     from ..synthesis.pipeline import Exclusions, SynthesisResult
     from ..synthesis.problem import build_problem
     from ..synthesis.search import SearchSettings, SearchStats
@@ -69,7 +70,8 @@ def finish(prepared, phases, runs, settings, writer, t0: float, say, source: str
     variants = min(settings.variants, max([len(r.qs) for r in runs] + [1]))
     motions, known = stitch_variants(runs, phases, scene.T, rest, variants, settings.max_joint_speed, scene.fps)
     # the whole motion's test: the largest slide speed of any window (the most permissive of their sliding rules)
-    ns = NodeTestSettings(slide_speed=max([r.slide_speed for r in runs] or [settings.slide_speed or 0.02]))
+    slide = max([r.slide_speed for r in runs] or [settings.slide_speed or 0.02])
+    ns = NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(prepared.scene) else 1e-3)
     failed = np.zeros(scene.T, dtype=bool)          # frames of windows without a solution, not solved by another
     for r in runs:
         if not r.qs:
@@ -152,6 +154,7 @@ def _final(res, q: torch.Tensor, v: int, problem):
 
 def _write(writer, result, frame_status, prepared, phases, runs, settings, coverage, contact, source) -> Path:
     from ..synthesis.output import solution_arrays, stats_dict
+    from .reference import result_reference
 
     writer.start(result.problem, result.scene)
     for v in range(len(result.finals)):
@@ -165,6 +168,7 @@ def _write(writer, result, frame_status, prepared, phases, runs, settings, cover
            "slide_speed": {"value": result.node_settings.slide_speed, "source": source,
                            "per_window": [r.slide_speed for r in runs]},
            "wrist": prepared.to_json()["wrist_deviation"], "wrist_tolerance": prepared.tolerance.to_json(),
+           "object": prepared.to_json()["object_deviation"],
            "frame_status_codes": {"0": "solved", "1": "free hand", "2": "unsolved"},
            "coverage": coverage,
            "unsolved_frames": [np.nonzero(s == FRAME_UNSOLVED)[0].tolist() for s in frame_status]}
@@ -176,6 +180,9 @@ def _write(writer, result, frame_status, prepared, phases, runs, settings, cover
                      "contact_frames": int(contact.sum()),
                      "window_time_s": [round(r.time_s, 2) for r in runs]}
     stats["capture"] = prepared.to_json()
+    reference = result_reference(result, writer.stage, frames=[s == FRAME_SOLVED for s in frame_status])
+    if reference is not None:
+        stats["reference"] = reference
     return writer.complete(stats)
 
 

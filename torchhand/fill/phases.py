@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import InputValueError
 from ..geometry.poses import smooth_poses
 
-__all__ = ["PHASE_KINDS", "Phase", "PhaseSettings", "hand_object_distance", "object_speed", "segment_phases",
+__all__ = ["PHASE_KINDS", "Phase", "PhaseSettings", "hand_object_distance", "object_speed", "pose_speed", "segment_phases",
            "format_phases"]
 
 PHASE_KINDS = ("free", "approach", "contact", "release")
@@ -99,17 +99,24 @@ def hand_object_distance(scene, side: str) -> np.ndarray:
 
 def object_speed(scene, settings: PhaseSettings = PhaseSettings()) -> np.ndarray:
     """(T,) m/s: the smoothed object's speed plus its angular speed times ``settings.lever``."""
-    poses = scene.object_pose.detach().cpu().double()
-    if scene.T < 2:
-        return np.zeros(scene.T)
+    return pose_speed(scene.object_pose, scene.fps, settings)
+
+
+def pose_speed(poses, fps: float, settings: PhaseSettings = PhaseSettings()) -> np.ndarray:
+    """(T,) m/s of a pose track (T, 4, 4): after a Gaussian low-pass of ``settings.smooth`` seconds, its speed plus
+    its angular speed times ``settings.lever``; each frame takes the larger of its two steps."""
+    poses = poses.detach().cpu().double()
+    T = poses.shape[0]
+    if T < 2:
+        return np.zeros(T)
     if settings.smooth > 0:
-        poses = smooth_poses(poses, max(settings.smooth * scene.fps, 0.5))
+        poses = smooth_poses(poses, max(settings.smooth * fps, 0.5))
     p = poses[:, :3, 3].numpy()
     R = poses[:, :3, :3].numpy()
     v = np.linalg.norm(np.diff(p, axis=0), axis=1)
     rel = np.einsum("tji,tjk->tik", R[:-1], R[1:])
     ang = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0))
-    step = (v + settings.lever * ang) * scene.fps
+    step = (v + settings.lever * ang) * fps
     return np.concatenate([step[:1], np.maximum(step[:-1], step[1:]), step[-1:]]) if len(step) > 1 else \
         np.concatenate([step, step])
 

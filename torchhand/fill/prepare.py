@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputValueError
+from .object_rest import ObjectAdjustment, ObjectRest, steady_object, with_object
 from .wrist import WristAdjustment, WristTolerance, steady_wrist, with_wrist
 
 __all__ = ["DEFAULT_SLIDE_SPEED", "PreparedCapture", "prepare_capture", "is_capture"]
@@ -32,7 +33,8 @@ class PreparedCapture:
     scene: the scene to search (wrists steadied); slide_speed: m/s; slide_source: "option", "capture noise" or
     "default"; phases: per hand side, the phases (tuple of :class:`~torchhand.fill.phases.Phase`), {} for a scene
     that is not a capture; noise: per side, :class:`~torchhand.fill.noise.CaptureNoise`; wrist: per side,
-    :class:`~torchhand.fill.wrist.WristAdjustment` (only hands that were steadied); tolerance: the tolerance used
+    :class:`~torchhand.fill.wrist.WristAdjustment` (only hands that were steadied); tolerance: the tolerance used;
+    object: the object track's :class:`~torchhand.fill.object_rest.ObjectAdjustment`, None when it was kept
     """
 
     scene: object
@@ -42,6 +44,7 @@ class PreparedCapture:
     phases: dict = field(default_factory=dict)
     noise: dict = field(default_factory=dict)
     wrist: dict = field(default_factory=dict)
+    object: ObjectAdjustment | None = None
 
     def to_json(self) -> dict:
         """The figures for ``stats.json`` (``capture``)."""
@@ -49,7 +52,8 @@ class PreparedCapture:
                 "wrist_tolerance": self.tolerance.to_json(),
                 "noise": {s: n.to_json() for s, n in self.noise.items()},
                 "wrist_deviation": {s: a.summary() for s, a in self.wrist.items()},
-                "phases": {s: [p.to_json() for p in ph] for s, ph in self.phases.items()}}
+                "phases": {s: [p.to_json() for p in ph] for s, ph in self.phases.items()},
+                "object_deviation": None if self.object is None else self.object.summary()}
 
     def describe(self) -> str:
         """One line for the terminal."""
@@ -59,6 +63,8 @@ class PreparedCapture:
             parts.append(f"{s} wrist moved by median {m['translation_mm']['median']:.1f} mm / "
                          f"{m['rotation_deg']['median']:.1f} deg (max {m['translation_mm']['max']:.1f} mm / "
                          f"{m['rotation_deg']['max']:.1f} deg) on {m['frames_moved']} frames")
+        if self.object is not None:
+            parts.append(self.object.describe().replace("; ", ", "))
         return "; ".join(parts)
 
 
@@ -68,7 +74,7 @@ def is_capture(scene) -> bool:
 
 
 def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: WristTolerance | None = None,
-                    phases: dict | None = None) -> PreparedCapture:
+                    phases: dict | None = None, object_rest: ObjectRest | None = ObjectRest()) -> PreparedCapture:
     """Phases, slide speed and steadied wrists of ``scene`` (module docstring).
 
     Args:
@@ -76,6 +82,8 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
         slide_speed: m/s, or None: from the capture's noise (a capture) or :data:`DEFAULT_SLIDE_SPEED`.
         tolerance: the wrist tolerance, or None: :class:`WristTolerance()` for a capture, fixed otherwise.
         phases: per side, phases to use instead of :func:`~torchhand.fill.phases.segment_phases`'.
+        object_rest: the limits of the object's adjustment (:mod:`torchhand.fill.object_rest`) of a capture, or
+            None: the object track as captured.
     """
     capture = is_capture(scene)
     if slide_speed is not None and not (isinstance(slide_speed, (int, float)) and math.isfinite(slide_speed)
@@ -83,7 +91,7 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
         raise InputValueError(f"slide_speed: expected a positive number of m/s, got {slide_speed!r}")
     if tolerance is None:
         tolerance = WristTolerance() if capture else WristTolerance(0.0, 0.0)
-    needs_phases = capture and (slide_speed is None or not tolerance.fixed)
+    needs_phases = capture and (slide_speed is None or not tolerance.fixed or object_rest is not None)
     if not needs_phases and phases is None:
         return PreparedCapture(scene, float(slide_speed or DEFAULT_SLIDE_SPEED),
                                "option" if slide_speed is not None else "default", tolerance)
@@ -93,6 +101,14 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
     phases = dict(phases or {})
     for h in scene.hands:
         phases.setdefault(h.side, segment_phases(scene, h.side))
+    obj = None
+    if capture and object_rest is not None:
+        obj = steady_object(scene.object_pose, scene.object.mesh, scene.environment.table_height
+                            if scene.environment.table else None, scene.fps, object_rest)
+        if bool((obj.translation > 0).any() or (obj.rotation > 0).any()):
+            scene = with_object(scene, obj.used)
+        else:
+            obj = None
     noise = {h.side: capture_noise(scene, h.side, phases[h.side]) for h in scene.hands}
     if slide_speed is None:
         slide_speed, source = max(n.slide_speed for n in noise.values()), "capture noise"
@@ -105,7 +121,7 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
         if not tolerance.fixed and held.any():
             adjusted[h.side] = adj
             scene = with_wrist(scene, h.side, adj.used)
-    return PreparedCapture(scene, float(slide_speed), source, tolerance, phases, noise, adjusted)
+    return PreparedCapture(scene, float(slide_speed), source, tolerance, phases, noise, adjusted, obj)
 
 
 def held_frames(phases, T: int) -> np.ndarray:

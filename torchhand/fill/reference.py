@@ -41,7 +41,8 @@ from ..errors import InputValueError, ShapeError
 from .phases import _track
 
 __all__ = ["FINGERS", "CONTACT_DISTANCE", "captured_fingertips", "solution_fingertips", "FingerComparison",
-           "compare_fingers", "plot_comparison"]
+           "compare_fingers", "plot_comparison", "reference_report",
+           "result_reference", "write_captured"]
 
 FINGERS = ("thumb", "index", "middle", "ring", "little")
 """The finger order of every (T, F, 3) array here, F = 5."""
@@ -298,3 +299,73 @@ def plot_comparison(cmp: FingerComparison, path, *, fps: float, title: str = "")
     path = Path(path)
     atomic_bytes(path, buf.getvalue())
     return path
+
+
+def reference_report(scene, hands, motions, out_dir, *, frames=None, plot: bool = True) -> dict:
+    """The captured-finger comparison of written motions, for ``stats.json`` (``reference``), with a plot per motion
+    and hand (``fingers_<side>_sol_XXX.png`` in ``out_dir``).
+
+    Args:
+        scene: the scene the motions belong to (with ``source``); hands: the hand models in the scene's hand order;
+        motions: per motion, (q (T, H, D) radians, root poses (H, T, 4, 4)); frames: None or per motion a (T,) bool
+        of the frames to compare (e.g. those a fill solved); plot: write the PNGs.
+    Returns:
+        {side: [summary per motion (:meth:`FingerComparison.summary`)]}, only for hands whose capture has fingers
+        and whose model has the five fingers of :data:`FINGERS` (robot hands are not compared); {} otherwise.
+    """
+    out = {}
+    for h, track in enumerate(scene.hands):
+        model = hands[h]
+        if tuple(getattr(model, "finger_names", ())) != FINGERS or captured_fingertips(scene, track.side) is None:
+            continue
+        rows = []
+        for v, (q, roots) in enumerate(motions):
+            tips = solution_fingertips(model, q[:, h], roots[h])
+            sel = None if frames is None else frames[v]
+            cmp = compare_fingers(tips, None, scene, track.side, frames=sel)
+            rows.append(cmp.summary())
+            if plot:
+                plot_comparison(cmp, Path(out_dir) / f"fingers_{track.side}_sol_{v:03d}.png", fps=scene.fps,
+                                title=f"{scene.name}, {track.side} hand, sol_{v:03d}: synthesized vs captured")
+        out[track.side] = rows
+    return out
+
+
+def result_reference(result, out_dir, frames=None) -> dict | None:
+    """:func:`reference_report` of a :class:`~torchhand.synthesis.pipeline.SynthesisResult`'s written motions
+    (``result.finals``) when its scene is a capture with fingers, and the captured fingers as a solution file
+    (:func:`write_captured`): ``{side: {"motions": [summary per motion], "captured_fit": {...}}}``; None for other
+    scenes. A capture whose source files cannot be read any more gives ``{"error": message}`` (the comparison is
+    information, never a failure)."""
+    from ..errors import TorchhandError
+
+    scene = result.scene
+    if getattr(scene, "source", None) is None or not result.finals:
+        return None
+    root = result.problem.root.detach().double().cpu()
+    motions = [(f.q.detach().double().cpu(), root) for f in result.finals]
+    try:
+        report = reference_report(scene, result.problem.hands, motions, out_dir, frames=frames)
+        out = {}
+        for h, track in enumerate(scene.hands):
+            if track.side in report:
+                out[track.side] = {"motions": report[track.side],
+                                   "captured_fit": write_captured(scene, track.side, result.problem.hands[h],
+                                                                  root[h], out_dir)}
+        return out or None
+    except TorchhandError as err:
+        return {"error": str(err)}
+
+
+def write_captured(scene, side: str, hand, root, out_dir) -> dict:
+    """``captured_<side>.npz`` in ``out_dir``: the captured fingers as a solution file
+    (:mod:`torchhand.fill.captured`), written atomically. Returns the fit's summary and the file name."""
+    from .._atomic import atomic_bytes
+    from .captured import captured_solution_arrays, fit_captured_fingers
+
+    fit = fit_captured_fingers(scene, side, hand, root)
+    buf = io.BytesIO()
+    np.savez(buf, **captured_solution_arrays(scene, side, hand, fit, root))
+    name = f"captured_{side}.npz"
+    atomic_bytes(Path(out_dir) / name, buf.getvalue())
+    return {"file": name, **fit.summary()}

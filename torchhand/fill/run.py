@@ -113,6 +113,7 @@ def run_window(scene, window: Window, settings: FillSettings, phases=None) -> Wi
     from ..synthesis.node_test import NodeTestSettings
     from ..synthesis.pipeline import synthesize
     from .noise import capture_noise
+    from .prepare import is_capture
 
     t0 = time.perf_counter()
     sub = scene.with_frames(window.start, window.stop)
@@ -121,7 +122,8 @@ def run_window(scene, window: Window, settings: FillSettings, phases=None) -> Wi
         held = phases or (Phase("contact", 0, sub.T),)
         slide = max(capture_noise(sub, h.side, held).slide_speed for h in sub.hands)
     res = synthesize(sub, solutions=settings.variants, max_nodes=settings.max_nodes, seed=window.seed,
-                     node_settings=NodeTestSettings(slide_speed=slide), max_joint_speed=settings.max_joint_speed,
+                     node_settings=NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(scene)
+                                                    else 1e-3), max_joint_speed=settings.max_joint_speed,
                      mount_fit=False)
     st = res.stats
     summary = {"rejections": dict(st.rejections), "deepest_frame": st.deepest_frame, "paths_found": st.paths_found,
@@ -169,7 +171,7 @@ def _report(progress, run: WindowRun, n: int) -> None:
 def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, window: int = 60, overlap: int = 15,
                  max_nodes: int = 30000, seed: int = 0, phases=None, slide_speed: float | None = None,
                  progress=None, overwrite: bool = False, tolerance=None, jobs: int = 1,
-                 max_joint_speed: float = 8.0) -> FillResult:
+                 max_joint_speed: float = 8.0, steady_object: bool = True) -> FillResult:
     """Finger motion for every frame of ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene name or a
     scene directory), written as the result directory ``out`` (docs/fill.md).
 
@@ -180,13 +182,15 @@ def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, wind
     None (a capture's own noise, 0.02 for other scenes); progress: callable(line) or None; overwrite: replace an
     earlier result directory; tolerance: the wrist tolerance of a capture
     (:class:`~torchhand.fill.wrist.WristTolerance`, None: 5 mm, 3 degrees); jobs: windows searched at once
-    (processes); max_joint_speed: rad/s.
+    (processes); max_joint_speed: rad/s; steady_object: a capture's object put on the table and held at rest
+    within capture noise (:mod:`torchhand.fill.object_rest`; False: as captured).
     Raises InputValueError (one line) for bad input or an output directory that may not be written, before any
     work.
     """
     from ..scene import Scene, load_scene
     from ..synthesis.mount_fit import fit_mounts
     from ..synthesis.output import ResultWriter
+    from .object_rest import ObjectRest
     from .prepare import DEFAULT_SLIDE_SPEED, is_capture, prepare_capture
 
     settings = FillSettings(variants=variants, window=window, overlap=overlap, max_nodes=max_nodes, seed=seed,
@@ -203,7 +207,8 @@ def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, wind
         # a capture's windows measure their own noise (torchhand.fill.noise); other scenes keep the default
         slide = given if given is not None else None if is_capture(scene) else DEFAULT_SLIDE_SPEED
         prepared = prepare_capture(scene, slide_speed=slide or DEFAULT_SLIDE_SPEED, tolerance=settings.tolerance,
-                                   phases=hand_phases(scene, side, phases))
+                                   phases=hand_phases(scene, side, phases),
+                                   object_rest=ObjectRest() if steady_object else None)
         settings = dataclasses.replace(settings, slide_speed=slide)
     except BaseException:
         writer.abandon()

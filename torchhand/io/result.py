@@ -102,6 +102,8 @@ class Solution:
     format_version: the file's ``format_version``, 0 for files written before versioning
     object_mass: the object's mass this solution was made with, kg (optional key ``variant_mass``: rollouts of
         other masses in one directory), or None when the file has none (the scene's mass applies)
+    object_pose_captured: the object track as captured, (T, 4, 4), when the method moved the object from it
+        within capture noise (optional key ``object_pose_captured``), else None
     """
 
     path: Path
@@ -124,6 +126,7 @@ class Solution:
     reconstructed: bool
     format_version: int
     object_mass: float | None = None
+    object_pose_captured: np.ndarray | None = None
 
     @property
     def T(self) -> int:
@@ -489,4 +492,6 @@ def solution_from_arrays(data: dict, path) -> Solution:
         reconstructed=bool(z.scalar("reconstructed", "biu")),
         format_version=version,
         object_mass=mass,
+        object_pose_captured=z.array("object_pose_captured", (T, 4, 4), "f") if z.has("object_pose_captured")
+        else None,
     )

@@ -72,6 +72,7 @@ class Scene:
     description: str = ""
     source: MocapSource | None = None
     external_wrench: torch.Tensor | None = None
+    captured_object_pose: torch.Tensor | None = None
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -79,6 +80,8 @@ class Scene:
         if not isinstance(self.object, RigidObject):
             raise InputTypeError(f"Scene.object: expected a RigidObject, got {type(self.object).__name__}")
         _check_pose_tensor(self.object_pose, "Scene.object_pose")
+        if self.captured_object_pose is not None:
+            _check_pose_tensor(self.captured_object_pose, "Scene.captured_object_pose", self.T)
         object.__setattr__(self, "fps", _check_number(self.fps, "Scene.fps", low=0.0, strict=True))
         object.__setattr__(self, "friction", _check_number(self.friction, "Scene.friction", low=0.0))
         hands = tuple(self.hands) if isinstance(self.hands, (list, tuple)) else self.hands
@@ -148,6 +151,8 @@ class Scene:
             InputValueError: a pose has NaN/inf or a non-orthonormal rotation (message names the field and frame).
         """
         check_transforms(self.object_pose, f"scene '{self.name}': object_pose")
+        if self.captured_object_pose is not None:
+            check_transforms(self.captured_object_pose, f"scene '{self.name}': captured_object_pose")
         for h in self.hands:
             check_transforms(h.wrist_pose, f"scene '{self.name}': wrist_pose_{h.side}")
             if h.captured_wrist_pose is not None:
@@ -180,8 +185,9 @@ class Scene:
                       for h in self.hands)
         source = None if self.source is None else self.source.shifted(start * self.source.fps / self.fps)
         ext = None if self.external_wrench is None else self.external_wrench[s].clone()
+        cap = None if self.captured_object_pose is None else self.captured_object_pose[s].clone()
         return dataclasses.replace(self, object_pose=self.object_pose[s].clone(), hands=hands, source=source,
-                                   external_wrench=ext)
+                                   external_wrench=ext, captured_object_pose=cap)
 
     def resample(self, fps: float) -> "Scene":
         """The same motion sampled at ``fps``: positions interpolated linearly, rotations by slerp.
@@ -198,8 +204,9 @@ class Scene:
                                           interpolate_poses(h.captured_wrist_pose, src, times))
                       for h in self.hands)
         ext = None if self.external_wrench is None else _interpolate_linear(self.external_wrench, src, times)
+        cap = None if self.captured_object_pose is None else interpolate_poses(self.captured_object_pose, src, times)
         return dataclasses.replace(self, fps=fps, object_pose=interpolate_poses(self.object_pose, src, times),
-                                   hands=hands, external_wrench=ext)
+                                   hands=hands, external_wrench=ext, captured_object_pose=cap)
 
     def smoothed(self, sigma: float) -> "Scene":
         """The same scene with every pose trajectory (object and wrists) low-pass filtered: a Gaussian of standard

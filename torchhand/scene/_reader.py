@@ -161,7 +161,8 @@ def load_scene_dir(directory: Path) -> Scene:
         check_transforms(a, f"{traj_path}: {key}")
 
     obj = load_object(mesh_path, mass=mass, density=density, scale=scale, name=obj_name, repair=repair)
-    captured = _read_optional_poses(traj_path, [f"captured_wrist_pose_{h[0]}" for h in hand_specs], T)
+    captured = _read_optional_poses(traj_path, [f"captured_wrist_pose_{h[0]}" for h in hand_specs]
+                                    + ["captured_object_pose"], T)
     hands = tuple(HandTrack(side=s, wrist_pose=arrays[f"wrist_pose_{s}"], length=length, model=model,
                             mount=None if mount is None else tuple(mount), rest=rest,
                             captured_wrist_pose=captured.get(f"captured_wrist_pose_{s}"))
@@ -171,7 +172,8 @@ def load_scene_dir(directory: Path) -> Scene:
         scene = Scene(name=name, object=obj, object_pose=arrays["object_pose"], fps=fps, hands=hands,
                       friction=friction, environment=environment,
                       gravity=torch.tensor([float(g) for g in gravity], dtype=torch.float64),
-                      description=description, source=source, external_wrench=external)
+                      description=description, source=source, external_wrench=external,
+                      captured_object_pose=captured.get("captured_object_pose"))
         return scene.validate()
     except TorchhandError as err:  # name the file for errors found by the dataclass checks
         raise type(err)(f"{toml_path}: {err}") from None

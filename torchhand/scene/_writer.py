@@ -72,6 +72,8 @@ def _write_files(scene: Scene, out: Path) -> None:
         arrays[f"wrist_pose_{h.side}"] = h.wrist_pose.detach().cpu().to(torch.float64).numpy()
         if h.captured_wrist_pose is not None:
             arrays[f"captured_wrist_pose_{h.side}"] = h.captured_wrist_pose.detach().cpu().to(torch.float64).numpy()
+    if scene.captured_object_pose is not None:
+        arrays["captured_object_pose"] = scene.captured_object_pose.detach().cpu().to(torch.float64).numpy()
     if scene.external_wrench is not None:
         arrays[_EXTERNAL] = scene.external_wrench.detach().cpu().to(torch.float64).numpy()
     with open(out / _TRAJ_FILE, "wb") as f:

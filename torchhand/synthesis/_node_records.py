@@ -59,6 +59,9 @@ class NodeTestSettings:
     boundary: float = 0.97         # |f_t| >= boundary mu f_n: the force is on the cone's boundary
     zero_force: float = 1e-3       # f_n below zero_force * weight: no force
     slide_speed: float = 0.02      # a held contact moving on the object faster than this slides, m/s
+    table_slide_speed: float = 1e-3  # a table contact moving slower than this is static, m/s (the scene's own
+    #                                rule, scene._contacts.environment_contacts); a capture uses its slide speed,
+    #                                the capture's noise, for hand and table contacts alike (torchhand.fill)
     cone_iters: int | None = 300   # iteration limit of the friction-cone solver (None: its default); a search
     #                                can drop the rare hard problem, the final check gives it more
     cone_polish: bool = True       # Newton polishing inside the friction-cone solver ...

@@ -285,7 +285,9 @@ def _dynamic_test(problem: SynthesisProblem, t: torch.Tensor, c_point, c_normal,
                     torch.full((N, E), problem.env_friction, dtype=f64, device=device)], 1)
     w = torch.cat([torch.cat(link_weight, 1).to(f64), torch.full((N, E), s.env_weight, dtype=f64, device=device)], 1)
     env_slide = problem.env.sliding_velocity[t].to(f64)
-    env_slide = env_slide / env_slide.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    speed = env_slide.norm(dim=-1, keepdim=True)
+    env_slide = torch.where(speed < s.table_slide_speed, torch.zeros_like(env_slide),
+                            env_slide / speed.clamp_min(1e-12))
     mask = torch.cat([c_mask, env_on], 1)
     run = ~kin_bad & ~fingers_bad
     if not dynamics:

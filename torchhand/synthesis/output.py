@@ -96,6 +96,8 @@ def solution_arrays(result: SynthesisResult, index: int) -> dict:
             out[f"root_pose_{side}"] = f(p.root[h])
             out[f"guiding_{side}"] = sol.guiding[:, h].cpu().numpy()
     out.update(captured_roots(result.scene, p.sides))
+    if result.scene.captured_object_pose is not None:
+        out["object_pose_captured"] = result.scene.captured_object_pose.detach().double().cpu().numpy()
     return out
 
 
