@@ -93,13 +93,16 @@ def closest_point_region(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor, c: t
 def _nearest(points: torch.Tensor, faces: torch.Tensor, triangles: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Among candidate triangles ``faces (M, C)``, the nearest to each point: (face (M,), closest point (M, 3),
-    region (M,)). Ties: the first candidate."""
+    region (M,)). Ties (equal distances up to a relative 1e-9): the lowest triangle index."""
     M, C = faces.shape
     tri = triangles[faces.reshape(-1)]                                          # (M C, 3, 3)
     p = points[:, None].expand(M, C, 3).reshape(-1, 3)
     cp, region = closest_point_region(p, tri[:, 0], tri[:, 1], tri[:, 2])
     d2 = ((p - cp) ** 2).sum(-1).view(M, C)
-    pick = d2.argmin(-1)[:, None]                                               # (M, 1)
+    # ties (a closest point on an edge or a vertex that several candidates share, equal up to rounding) go to the
+    # lowest triangle index, not to whichever rounding makes nearer: a point moved by 1e-9 keeps its triangle
+    tie = d2 <= d2.amin(-1, keepdim=True) * (1 + 1e-9) + 1e-30
+    pick = torch.where(tie, faces, torch.full_like(faces, torch.iinfo(faces.dtype).max)).argmin(-1)[:, None]
     closest = cp.view(M, C, 3).gather(1, pick[..., None].expand(M, 1, 3)).squeeze(1)
     return faces.gather(1, pick).squeeze(1), closest, region.view(M, C).gather(1, pick).squeeze(1)
 
