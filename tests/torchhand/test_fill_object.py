@@ -58,6 +58,9 @@ def test_a_standing_box_is_put_flat_on_the_table_and_held_still():
     step = (adj.used[1:25, :3, 3] - adj.used[:24, :3, 3]).norm(dim=-1)
     assert step.max() < 1e-12                                              # held: no jitter left
     assert torch.equal(adj.used[70:], poses[70:])                          # lifted: the capture as is
+    z = adj.used[38:70, 2, 3]
+    assert (z[1:] - z[:-1]).min() > -1e-4                                  # a lift is never pulled back down
+    assert torch.equal(adj.used[46:], poses[46:])    # from 0.1 s into the lift on (gap 11 mm): the capture as is
     assert adj.rotation.max() <= math.radians(8.0) + 1e-9
     assert adj.translation[:30].max() < 0.01
 

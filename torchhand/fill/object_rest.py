@@ -5,10 +5,12 @@ degrees from its base, and "resting" it moves 1-14 mm/s: the table then carries 
 and every table contact slides. A still object with the hand away cannot pass a dynamic test like that. So, for an
 imported capture, within stated limits:
 
-* **on the table**: where the object's lowest point (of its convex hull) is within ``near`` of the table plane
-  (above or below), its pose is rotated so that the hull face closest to lying flat does (when within ``level``; a
-  face of at least ``min_face`` of the hull's area: no levelling for a round object) and lowered or raised so that
-  it touches the plane; the change fades out between ``near`` and ``far``;
+* **on the table**: where the object stands on the table (its lowest point, of its convex hull, within ``near``
+  of the plane, above or below, and that height changing slower than ``lift_speed`` after a Gaussian low-pass of
+  ``fade / 2`` seconds: a lift or a set-down is the capture's own), its pose is rotated so that the hull face
+  closest to lying flat does (when within ``level``; a face of at least ``min_face`` of the hull's area: no
+  levelling for a round object) and lowered or raised so that it touches the plane; the change fades in and out
+  over ``fade`` seconds beside those frames (smoothstep), and never reaches beyond ``far`` from the plane;
 * **at rest**: runs of at least ``min_rest`` seconds in which the object stands on the table and its smoothed speed
   (:func:`~torchhand.fill.phases.pose_speed`) stays below ``rest_speed`` hold one pose: the median position and the
   medoid orientation of the run, when every frame of the run lies within ``hold`` (metres, radians) of it; the hold
@@ -36,19 +38,21 @@ __all__ = ["ObjectRest", "ObjectAdjustment", "steady_object", "with_object"]
 
 @dataclass(frozen=True)
 class ObjectRest:
-    """Limits of the object's adjustment (module docstring). Metres, seconds, m/s, radians."""
+    """Limits of the object's adjustment (module docstring). Metres, seconds, m/s, radians; ``near``, ``far``,
+    ``lift_speed``: the table correction; ``rest_speed``, ``min_rest``, ``hold``: the rest hold; ``fade``: both."""
 
     near: float = 0.006
     far: float = 0.015
     level: float = math.radians(8.0)
     min_face: float = 0.05
+    lift_speed: float = 0.03
     rest_speed: float = 0.03
     min_rest: float = 0.2
     hold: tuple = (0.005, math.radians(3.0))
     fade: float = 0.1
 
     def __post_init__(self):
-        for name in ("near", "far", "level", "min_face", "rest_speed", "min_rest", "fade"):
+        for name in ("near", "far", "level", "min_face", "lift_speed", "rest_speed", "min_rest", "fade"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise InputValueError(f"ObjectRest.{name}: expected a finite number >= 0, got {v!r}")
@@ -104,7 +108,7 @@ def steady_object(pose: torch.Tensor, mesh, table_height: float | None, fps: flo
     hull = mesh.convex_hull
     V = torch.as_tensor(np.asarray(hull.vertices), dtype=torch.float64)
     centre = torch.as_tensor(np.asarray(mesh.center_mass if mesh.is_volume else hull.centroid), dtype=torch.float64)
-    w_table = _table_weight(_gap(captured, V, table_height), settings)
+    w_table = _table_weight(_gap(captured, V, table_height), fps, settings)
     used = _drop(_level(captured, _bases(hull, settings.min_face), centre, w_table, settings.level), V,
                  table_height, w_table)
     resting, held = _rest_runs(used, fps, w_table, settings)
@@ -130,10 +134,21 @@ def _gap(pose: torch.Tensor, V: torch.Tensor, h: float) -> torch.Tensor:
     return z.min(-1).values - h
 
 
-def _table_weight(gap: torch.Tensor, s: ObjectRest) -> torch.Tensor:
-    """1 within ``near`` of the plane (either side), smoothstep to 0 at ``far``."""
+def _table_weight(gap: torch.Tensor, fps: float, s: ObjectRest) -> torch.Tensor:
+    """(T,) weight of the table correction: 1 on the frames that stand on the table (within ``near`` of the plane,
+    either side, with the gap changing slower than ``lift_speed``: not lifted or set down), a smoothstep to 0 over
+    ``fade`` seconds beside them in time, and nothing beyond ``far`` (a smoothstep from ``near``)."""
+    g = gap.numpy()
+    sigma = max(0.5 * s.fade * fps, 0.5)
+    half = max(1, int(math.ceil(3 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+    smooth = np.convolve(np.pad(g, half, mode="edge"), k / k.sum(), mode="valid")
+    rate = np.gradient(smooth) * fps if len(g) > 1 else np.zeros_like(g)
+    on = (np.abs(g) <= s.near) & (np.abs(rate) <= s.lift_speed)
+    if not on.any():
+        return torch.zeros_like(gap)
     x = ((s.far - gap.abs()) / (s.far - s.near)).clamp(0, 1)
-    return x * x * (3 - 2 * x)
+    return _fade_weight(torch.as_tensor(on), s.fade * fps) * x * x * (3 - 2 * x)
 
 
 def _bases(hull, min_face: float) -> torch.Tensor:
