@@ -143,3 +143,23 @@ def test_manipnet_mug_rests_on_its_base_within_the_limits(tmp_path):
     assert adj.translation.max() < 0.015 and adj.rotation.max() <= math.radians(8.0) + 1e-9
     lifted = _lowest(scene.object_pose, scene.object.mesh) - scene.environment.table_height > 0.02
     assert torch.equal(adj.used[lifted], scene.object_pose[lifted].double())
+
+
+@pytest.mark.skipif(not MUG1.is_dir(), reason="../shared/data/mocap/manipnet/mug1 is not present")
+def test_prepare_capture_steadies_the_object_unless_asked_not_to_and_scenes_keep_the_capture(tmp_path):
+    from torchhand.fill.prepare import prepare_capture
+    from torchhand.scene import load_scene
+    from torchhand.scene.mocap import manipnet_scene
+
+    scene = manipnet_scene(MUG1, fps=30.0, hands=("right",)).with_frames(0, 120)
+    kept = prepare_capture(scene, object_rest=None)
+    assert kept.object is None and kept.scene.captured_object_pose is None
+    assert torch.equal(kept.scene.object_pose, scene.object_pose)
+    moved = prepare_capture(scene)
+    assert moved.object is not None and moved.to_json()["object_deviation"]["frames_resting"] > 0
+    assert torch.equal(moved.scene.captured_object_pose, scene.object_pose)
+    assert "object moved by" in moved.describe()
+    moved.scene.export(tmp_path / "s")
+    back = load_scene(tmp_path / "s")
+    torch.testing.assert_close(back.captured_object_pose, scene.object_pose, rtol=0, atol=1e-12)
+    torch.testing.assert_close(back.object_pose, moved.scene.object_pose, rtol=0, atol=1e-12)
