@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from ..errors import InputValueError
 from .object_rest import ObjectAdjustment, ObjectRest, steady_object, with_object
@@ -105,7 +106,7 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
     if capture and object_rest is not None:
         obj = steady_object(scene.object_pose, scene.object.mesh, scene.environment.table_height
                             if scene.environment.table else None, scene.fps, object_rest)
-        if bool((obj.translation > 0).any() or (obj.rotation > 0).any()):
+        if not torch.equal(obj.used, obj.captured):
             scene = with_object(scene, obj.used)
         else:
             obj = None
