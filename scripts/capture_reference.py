@@ -23,7 +23,8 @@ def main() -> int:
     ap.add_argument("result", type=Path)
     ap.add_argument("--out", type=Path, default=None, help="default: RESULT_DIR")
     args = ap.parse_args()
-    from torchhand.fill.reference import reference_report, write_captured
+    from torchhand.fill.captured import write_captured
+    from torchhand.fill.reference import reference_report
     from torchhand.hand.mount import track_hand
     from torchhand.io.result import load_result
 

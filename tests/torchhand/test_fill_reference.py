@@ -194,7 +194,7 @@ def test_captured_fingers_as_a_solution_file(mug, tmp_path):
     """write_captured on a mug clip: a solution file the reader accepts, the built-in hand within ~1 cm of the
     captured finger ends (median), no contacts; a robot-like model without the five fingers is refused."""
     from torchhand.fill.captured import fit_captured_fingers
-    from torchhand.fill.reference import write_captured
+    from torchhand.fill.captured import write_captured
     from torchhand.hand.mount import track_hand
     from torchhand.io.result import load_solution
 

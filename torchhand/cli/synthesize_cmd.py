@@ -141,7 +141,7 @@ def _prepare(scene, args):
 def run(args) -> int:
     from ..scene import load_scene
     from ..fill.prepare import is_capture
-    from ..fill.reference import result_reference
+    from ..fill.captured import result_reference
     from ..synthesis.node_test import NodeTestSettings
     from ..synthesis.output import ResultWriter, stats_dict
     from ..synthesis.pipeline import synthesize

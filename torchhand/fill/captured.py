@@ -21,10 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..errors import InputValueError
-from .reference import FINGERS, captured_fingertips
+import io
+from pathlib import Path
 
-__all__ = ["CapturedFit", "fit_captured_fingers", "captured_solution_arrays"]
+from .._atomic import atomic_bytes
+from ..errors import InputValueError, TorchhandError
+from .reference import FINGERS, captured_fingertips, reference_report
+
+__all__ = ["CapturedFit", "fit_captured_fingers", "captured_solution_arrays", "write_captured", "result_reference"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,3 +129,38 @@ def captured_solution_arrays(scene, side: str, hand, fit: CapturedFit, root: tor
             "contact_force": z3.copy(), "contact_sliding": np.zeros((T, 0), bool),
             "env_contact_mask": np.zeros((T, 0), bool), "env_contact_point": z3.copy(),
             "env_contact_force": z3.copy(), "reconstructed": np.array(False)}
+
+
+def result_reference(result, out_dir, frames=None) -> dict | None:
+    """:func:`reference_report` of a :class:`~torchhand.synthesis.pipeline.SynthesisResult`'s written motions
+    (``result.finals``) when its scene is a capture with fingers, and the captured fingers as a solution file
+    (:func:`write_captured`): ``{side: {"motions": [summary per motion], "captured_fit": {...}}}``; None for other
+    scenes. A capture whose source files cannot be read any more gives ``{"error": message}`` (the comparison is
+    information, never a failure)."""
+    scene = result.scene
+    if getattr(scene, "source", None) is None or not result.finals:
+        return None
+    root = result.problem.root.detach().double().cpu()
+    motions = [(f.q.detach().double().cpu(), root) for f in result.finals]
+    try:
+        report = reference_report(scene, result.problem.hands, motions, out_dir, frames=frames)
+        out = {}
+        for h, track in enumerate(scene.hands):
+            if track.side in report:
+                out[track.side] = {"motions": report[track.side],
+                                   "captured_fit": write_captured(scene, track.side, result.problem.hands[h],
+                                                                  root[h], out_dir)}
+        return out or None
+    except TorchhandError as err:
+        return {"error": str(err)}
+
+
+def write_captured(scene, side: str, hand, root, out_dir) -> dict:
+    """``captured_<side>.npz`` in ``out_dir``: the captured fingers as a solution file
+    (:mod:`torchhand.fill.captured`), written atomically. Returns the fit's summary and the file name."""
+    fit = fit_captured_fingers(scene, side, hand, root)
+    buf = io.BytesIO()
+    np.savez(buf, **captured_solution_arrays(scene, side, hand, fit, root))
+    name = f"captured_{side}.npz"
+    atomic_bytes(Path(out_dir) / name, buf.getvalue())
+    return {"file": name, **fit.summary()}

@@ -154,7 +154,7 @@ def _final(res, q: torch.Tensor, v: int, problem):
 
 def _write(writer, result, frame_status, prepared, phases, runs, settings, coverage, contact, source) -> Path:
     from ..synthesis.output import solution_arrays, stats_dict
-    from .reference import result_reference
+    from .captured import result_reference
 
     writer.start(result.problem, result.scene)
     for v in range(len(result.finals)):

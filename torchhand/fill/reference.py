@@ -41,8 +41,7 @@ from ..errors import InputValueError, ShapeError
 from .phases import _track
 
 __all__ = ["FINGERS", "CONTACT_DISTANCE", "captured_fingertips", "solution_fingertips", "FingerComparison",
-           "compare_fingers", "plot_comparison", "reference_report",
-           "result_reference", "write_captured"]
+           "compare_fingers", "plot_comparison", "reference_report"]
 
 FINGERS = ("thumb", "index", "middle", "ring", "little")
 """The finger order of every (T, F, 3) array here, F = 5."""
@@ -330,42 +329,3 @@ def reference_report(scene, hands, motions, out_dir, *, frames=None, plot: bool 
         out[track.side] = rows
     return out
 
-
-def result_reference(result, out_dir, frames=None) -> dict | None:
-    """:func:`reference_report` of a :class:`~torchhand.synthesis.pipeline.SynthesisResult`'s written motions
-    (``result.finals``) when its scene is a capture with fingers, and the captured fingers as a solution file
-    (:func:`write_captured`): ``{side: {"motions": [summary per motion], "captured_fit": {...}}}``; None for other
-    scenes. A capture whose source files cannot be read any more gives ``{"error": message}`` (the comparison is
-    information, never a failure)."""
-    from ..errors import TorchhandError
-
-    scene = result.scene
-    if getattr(scene, "source", None) is None or not result.finals:
-        return None
-    root = result.problem.root.detach().double().cpu()
-    motions = [(f.q.detach().double().cpu(), root) for f in result.finals]
-    try:
-        report = reference_report(scene, result.problem.hands, motions, out_dir, frames=frames)
-        out = {}
-        for h, track in enumerate(scene.hands):
-            if track.side in report:
-                out[track.side] = {"motions": report[track.side],
-                                   "captured_fit": write_captured(scene, track.side, result.problem.hands[h],
-                                                                  root[h], out_dir)}
-        return out or None
-    except TorchhandError as err:
-        return {"error": str(err)}
-
-
-def write_captured(scene, side: str, hand, root, out_dir) -> dict:
-    """``captured_<side>.npz`` in ``out_dir``: the captured fingers as a solution file
-    (:mod:`torchhand.fill.captured`), written atomically. Returns the fit's summary and the file name."""
-    from .._atomic import atomic_bytes
-    from .captured import captured_solution_arrays, fit_captured_fingers
-
-    fit = fit_captured_fingers(scene, side, hand, root)
-    buf = io.BytesIO()
-    np.savez(buf, **captured_solution_arrays(scene, side, hand, fit, root))
-    name = f"captured_{side}.npz"
-    atomic_bytes(Path(out_dir) / name, buf.getvalue())
-    return {"file": name, **fit.summary()}

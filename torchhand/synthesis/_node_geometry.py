@@ -71,9 +71,11 @@ def _edge_proxies(problem: SynthesisProblem, t: torch.Tensor, hand, poses: torch
     n0 = _rotate(T_inv[:, None], normal)
     t1, t2 = tangent_frame(n0 / n0.norm(dim=-1, keepdim=True).clamp_min(1e-9))
     x = p0[:, :, None] + s.proxy_radius * torch.stack([t1, -t1, t2, -t2], 2)    # (N, F, 4, 3)
-    sd, g, x = problem.sdf.query_surface(x.reshape(N, -1, 3))               # onto the surface (exact near it)
+    _, g, x = problem.sdf.query_surface(x.reshape(N, -1, 3))                # onto the surface (exact near it)
     x = x.reshape(N, F, 4, 3)
-    sd, g, _ = problem.sdf.query_surface(x.reshape(N, -1, 3))               # ~0 unless the projection was a grid's
+    sd, _, _ = problem.sdf.query_surface(x.reshape(N, -1, 3))               # ~0 unless the projection was a grid's
+    # the normal where the pushed point projects: the direction from the surface to it (at an edge or a corner,
+    # the one of its normal cone facing the push, e.g. the side face beyond a box's edge), not the cone's middle
     n_in = -g.reshape(x.shape)
     cos = (n_in * n0[:, :, None]).sum(-1)                                  # (N, F, 4)
     xw = _transform(T_obj[:, None, None], x)
