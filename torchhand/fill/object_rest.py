@@ -31,7 +31,8 @@ import numpy as np
 import torch
 
 from ..errors import InputValueError
-from ..geometry.poses import matrix_to_quat, quat_to_matrix, slerp
+from ..geometry.poses import matrix_to_quat
+from .wrist import _angle, _blend, deviation_summary
 
 __all__ = ["ObjectRest", "ObjectAdjustment", "steady_object", "with_object"]
 
@@ -79,9 +80,7 @@ class ObjectAdjustment:
     resting: torch.Tensor
 
     def summary(self) -> dict:
-        t, r = 1e3 * self.translation.numpy(), np.degrees(self.rotation.numpy())
-        return {"translation_mm": {"median": float(np.median(t)), "max": float(t.max())},
-                "rotation_deg": {"median": float(np.median(r)), "max": float(r.max())},
+        return {**deviation_summary(self.translation, self.rotation),
                 "frames_on_table": int((self.on_table > 0).sum()), "frames_resting": int(self.resting.sum())}
 
     def describe(self) -> str:
@@ -253,15 +252,6 @@ def _fade_weight(resting: torch.Tensor, width: float) -> torch.Tensor:
     return torch.as_tensor(x * x * (3 - 2 * x))
 
 
-def _blend(a: torch.Tensor, b: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """Per frame, the pose a fraction ``w`` of the way from ``a`` to ``b``; exactly ``a`` where ``w`` is 0."""
-    out = a.clone()
-    k = w > 0
-    out[k, :3, 3] = a[k, :3, 3] + w[k, None] * (b[k, :3, 3] - a[k, :3, 3])
-    out[k, :3, :3] = quat_to_matrix(slerp(matrix_to_quat(a[k, :3, :3]), matrix_to_quat(b[k, :3, :3]), w[k]))
-    return out
-
-
 def _axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     """Rodrigues: (T, 3) unit axes, (T,) angles -> (T, 3, 3)."""
     K = torch.zeros(axis.shape[0], 3, 3, dtype=axis.dtype)
@@ -269,9 +259,3 @@ def _axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     K = K - K.transpose(1, 2)
     s, c = torch.sin(angle)[:, None, None], torch.cos(angle)[:, None, None]
     return torch.eye(3, dtype=axis.dtype) + s * K + (1 - c) * (K @ K)
-
-
-def _angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    R = a[:, :3, :3].transpose(-1, -2) @ b[:, :3, :3]
-    c = ((R.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)
-    return torch.arccos(c)

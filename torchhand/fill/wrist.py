@@ -87,10 +87,7 @@ class WristAdjustment:
     weight: torch.Tensor
 
     def summary(self) -> dict:
-        t, r = 1e3 * self.translation.numpy(), np.degrees(self.rotation.numpy())
-        return {"translation_mm": {"median": float(np.median(t)), "max": float(t.max())},
-                "rotation_deg": {"median": float(np.median(r)), "max": float(r.max())},
-                "frames_moved": int((self.weight > 0).sum())}
+        return {**deviation_summary(self.translation, self.rotation), "frames_moved": int((self.weight > 0).sum())}
 
 
 def steady_wrist(wrist: torch.Tensor, object_pose: torch.Tensor, held: np.ndarray, fps: float,
@@ -133,6 +130,13 @@ def with_wrist(scene, side: str, used: torch.Tensor):
     return dataclasses.replace(scene, hands=hands)
 
 
+def deviation_summary(translation: torch.Tensor, rotation: torch.Tensor) -> dict:
+    """Median and largest of a per-frame deviation: translation (T,) metres -> mm, rotation (T,) radians -> deg."""
+    t, r = 1e3 * translation.numpy(), np.degrees(rotation.numpy())
+    return {"translation_mm": {"median": float(np.median(t)), "max": float(t.max())},
+            "rotation_deg": {"median": float(np.median(r)), "max": float(r.max())}}
+
+
 def _fade(held: torch.Tensor, sigma: float) -> torch.Tensor:
     """(T,) weights: 1 on held frames, falling to 0 over ~2 sigma frames outside them (a smoothed step)."""
     x = held.double()
@@ -145,10 +149,12 @@ def _fade(held: torch.Tensor, sigma: float) -> torch.Tensor:
 
 
 def _blend(a: torch.Tensor, b: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """Per frame, the pose a fraction ``w`` of the way from ``a`` to ``b`` (lerp positions, slerp rotations)."""
+    """Per frame, the pose a fraction ``w`` of the way from ``a`` to ``b`` (lerp positions, slerp rotations); exactly
+    ``a`` where ``w`` is 0."""
     out = a.clone()
-    out[:, :3, 3] = a[:, :3, 3] + w[:, None] * (b[:, :3, 3] - a[:, :3, 3])
-    out[:, :3, :3] = quat_to_matrix(slerp(matrix_to_quat(a[:, :3, :3]), matrix_to_quat(b[:, :3, :3]), w))
+    k = w > 0
+    out[k, :3, 3] = a[k, :3, 3] + w[k, None] * (b[k, :3, 3] - a[k, :3, 3])
+    out[k, :3, :3] = quat_to_matrix(slerp(matrix_to_quat(a[k, :3, :3]), matrix_to_quat(b[k, :3, :3]), w[k]))
     return out
 
 
