@@ -205,18 +205,28 @@ def test_a_failed_window_is_flagged_and_counted_apart(tmp_path):
     from torchhand.fill.run import fill_capture
 
     out = tmp_path / "bt"
+    # one round of search: the window's deepest path is a piece of its first frames; the rest is unsolved
     res = fill_capture(_scene(), out, phases=PHASES, variants=2, window=30, overlap=5, max_nodes=1, seed=0)
     assert res.frame_status.shape == (1, 14)                           # no window solution: one motion
     st = res.frame_status[0]
-    assert (st[2:12] == 2).all() and (st[[0, 1, 12, 13]] != 2).all()
+    [run] = res.windows
+    assert run.status == "partial" and run.qs == [] and len(run.attempts) == 1
+    [piece] = run.pieces
+    assert piece.kind == "partial" and piece.start == 2 and 2 < piece.stop < 12
+    assert (st[piece.stop:12] == 2).all() and (st[2:piece.stop] != 1).all() and (st[[0, 1, 12, 13]] != 2).all()
+    unsolved = np.nonzero(st == 2)[0].tolist()
+    mid = unsolved[len(unsolved) // 2]                                 # an unsolved frame between unsolved ones
+    assert len(unsolved) >= 3 and mid - 1 in unsolved and mid + 1 in unsolved
     doc = json.loads((out / "phases.json").read_text())
     [w] = doc["windows"]
-    assert w["status"] == "failed" and w["solutions"] == 0
+    assert w["status"] == "partial" and w["solutions"] == 0
+    assert w["pieces"] == [{"start": 2, "stop": piece.stop, "kind": "partial", "motions": 1}]
+    assert w["searches"][0]["stopped_by"] == "max_nodes" and w["searches"][0]["reached"] == piece.stop
     assert set(w["rejections"]) == {"kinematic", "finger_finger", "dynamic"} and "deepest_frame" in w
-    assert doc["unsolved_frames"] == [list(range(2, 12))]
+    assert doc["unsolved_frames"] == [unsolved]
     report = check_result(out)
-    assert report.passed and report.solutions[0].unsolved == tuple(range(2, 12))
-    assert report.solutions[0].to_dict()["unsolved_frames"] == list(range(2, 12))
+    assert report.passed and report.solutions[0].unsolved == tuple(unsolved)
+    assert report.solutions[0].to_dict()["unsolved_frames"] == unsolved
 
     # the checker: frames flagged unsolved are not checked, every other frame is; without frame_status a file is
     # checked in every frame, as before
@@ -225,7 +235,7 @@ def test_a_failed_window_is_flagged_and_counted_apart(tmp_path):
         arrays = dict(z)
     lim = torchhand.load_result(out).hand_models["right"].joint_limits.numpy()
     arrays["q"] = arrays["q"].copy()
-    arrays["q"][5, 0] = lim[0, 1] + 0.5                                 # beyond the joint limit in an unsolved frame
+    arrays["q"][mid, 0] = lim[0, 1] + 0.5                              # beyond the joint limit in an unsolved frame
     np.savez(path, **arrays)
     assert check_result(out).passed
     arrays["q"][13, 0] = lim[0, 1] + 0.5                                # and in a free-hand frame: checked
@@ -237,7 +247,7 @@ def test_a_failed_window_is_flagged_and_counted_apart(tmp_path):
     np.savez(path, **arrays)
     old = check_result(out)
     assert not old.passed and old.solutions[0].unsolved == ()
-    assert old.solutions[0].figures["joint_limit_rad"].frame == 5
+    assert old.solutions[0].figures["joint_limit_rad"].frame == mid
     arrays["frame_status"] = np.full(14, 7, dtype=np.int8)             # not a code
     np.savez(path, **arrays)
     with pytest.raises(FileFormatError, match="frame_status"):

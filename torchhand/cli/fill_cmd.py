@@ -39,7 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overlap", type=int, default=15, metavar="F",
                    help="frames shared by consecutive windows, crossfaded (default 15; window >= 3 x overlap)")
     p.add_argument("--max-nodes", type=int, default=30000, metavar="N",
-                   help="search budget per window in node tests (default 30000)")
+                   help="search budget per window in node tests, shared by its searches (default 30000)")
+    p.add_argument("--stall-nodes", type=int, default=5000, metavar="N",
+                   help="node tests without a deeper frame after which a window's search stops at a wall and the "
+                        "window goes on past it (default 5000)")
     p.add_argument("--seed", type=int, default=0, help="main seed; each window's is derived from it (default 0)")
     p.add_argument("--slide-speed", type=float, default=None, metavar="M_PER_S",
                    help="slide speed of held contacts (default: from the capture's own noise; 0.02 for a scene that "
@@ -61,7 +64,7 @@ def run(args) -> int:
 
     for name, value, low in (("--variants", args.variants, 1), ("--window", args.window, 1),
                              ("--overlap", args.overlap, 2), ("--max-nodes", args.max_nodes, 1),
-                             ("--jobs", args.jobs, 1)):
+                             ("--stall-nodes", args.stall_nodes, 1), ("--jobs", args.jobs, 1)):
         if value < low:
             raise InputValueError(f"{name}: expected an integer >= {low}, got {value}")
     if args.window < 3 * args.overlap:
@@ -76,7 +79,8 @@ def run(args) -> int:
         result = fill_capture(args.scene, args.out, side=args.side, variants=args.variants, window=args.window,
                               overlap=args.overlap, max_nodes=args.max_nodes, seed=args.seed,
                               slide_speed=args.slide_speed, tolerance=tolerance, jobs=args.jobs, progress=say,
-                              overwrite=args.overwrite, steady_object=not args.object_as_captured)
+                              overwrite=args.overwrite, steady_object=not args.object_as_captured,
+                              stall_nodes=args.stall_nodes)
     except KeyboardInterrupt:
         print(f"torchhand: interrupted; nothing complete was written to {args.out} (an earlier result there is "
               f"kept whole)", file=sys.stderr)
@@ -84,9 +88,9 @@ def run(args) -> int:
     unsolved = [int((s == 2).sum()) for s in result.frame_status]
     print(f"wrote {result.out}: {len(result.frame_status)} motion(s) of {result.frame_status.shape[1]} frames in "
           f"{result.time_s:.0f} s; {sum(r.status == 'solved' for r in result.windows)}/{len(result.windows)} "
-          f"windows solved; contact-phase frames solved {100 * result.coverage:.1f} %; unsolved frames per motion "
+          f"windows solved whole, {sum(r.status == 'partial' for r in result.windows)} in part; contact-phase frames solved {100 * result.coverage:.1f} %; unsolved frames per motion "
           f"{unsolved} (phases.json, frame_status)")
-    if result.windows and not any(r.qs for r in result.windows):
+    if result.windows and not any(r.pieces for r in result.windows):
         print("no window found a solution: every contact frame is flagged unsolved. Try a larger --max-nodes, another "
               "--seed or shorter windows (docs/fill.md); phases.json lists each window's rejections.", file=sys.stderr)
         return 1

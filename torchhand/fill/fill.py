@@ -67,15 +67,14 @@ def finish(prepared, phases, runs, settings, writer, t0: float, say, source: str
     problem = build_problem(scene, torch.Generator().manual_seed(settings.seed))
     rest = torch.stack([h.q_rest for h in problem.hands]).double().cpu()
     # as many motions as the richest window has solutions (a window with fewer repeats its own, v mod n)
-    variants = min(settings.variants, max([len(r.qs) for r in runs] + [1]))
+    variants = min(settings.variants, max([len(p.qs) for r in runs for p in r.pieces] + [1]))
     motions, known = stitch_variants(runs, phases, scene.T, rest, variants, settings.max_joint_speed, scene.fps)
     # the whole motion's test: the largest slide speed of any window (the most permissive of their sliding rules)
     slide = max([r.slide_speed for r in runs] or [settings.slide_speed or 0.02])
     ns = NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(prepared.scene) else 1e-3)
-    failed = np.zeros(scene.T, dtype=bool)          # frames of windows without a solution, not solved by another
+    failed = np.zeros(scene.T, dtype=bool)          # frames of windows that no piece of any window covers
     for r in runs:
-        if not r.qs:
-            failed[r.window.start:r.window.stop] = True
+        failed[r.window.start:r.window.stop] = True
     failed &= ~known
     contact = np.zeros(scene.T, dtype=bool)
     for p in phases:
@@ -175,8 +174,10 @@ def _write(writer, result, frame_status, prepared, phases, runs, settings, cover
     atomic_json(writer.stage / "phases.json", doc)
     stats = stats_dict(result)
     stats["fill"] = {"window": settings.window, "overlap": settings.overlap, "variants": settings.variants,
-                     "max_nodes_per_window": settings.max_nodes, "jobs": settings.jobs, "windows": len(runs),
-                     "windows_solved": sum(r.status == "solved" for r in runs), "coverage": coverage,
+                     "max_nodes_per_window": settings.max_nodes,
+                     "stall_nodes": settings.stall_nodes, "jobs": settings.jobs, "windows": len(runs),
+                     "windows_solved": sum(r.status == "solved" for r in runs),
+                     "windows_partial": sum(r.status == "partial" for r in runs), "coverage": coverage,
                      "contact_frames": int(contact.sum()),
                      "window_time_s": [round(r.time_s, 2) for r in runs]}
     stats["capture"] = prepared.to_json()

@@ -45,7 +45,8 @@ __all__ = ["FillSettings", "WindowRun", "FillResult", "fill_capture", "run_windo
 @dataclass(frozen=True)
 class FillSettings:
     """variants: solutions per window and written motions; window, overlap: frames; max_nodes: node tests per
-    window; seed: the run's seed; jobs: windows searched at once (processes); slide_speed: m/s or None (each
+    window (shared by its pieces, :mod:`torchhand.fill.pieces`); stall_nodes: node tests without a deeper frame
+    after which a search of a window stops at a wall and the window goes on past it; seed: the run's seed; jobs: windows searched at once (processes); slide_speed: m/s or None (each
     window's noise); tolerance: :class:`~torchhand.fill.wrist.WristTolerance` or None (5 mm, 3 degrees);
     max_joint_speed: rad/s."""
 
@@ -53,6 +54,7 @@ class FillSettings:
     window: int = 60
     overlap: int = 15
     max_nodes: int = 30000
+    stall_nodes: int = 5000
     seed: int = 0
     jobs: int = 1
     slide_speed: float | None = None
@@ -60,7 +62,7 @@ class FillSettings:
     max_joint_speed: float = 8.0
 
     def __post_init__(self):
-        for name in ("variants", "max_nodes", "jobs", "window", "overlap"):
+        for name in ("variants", "max_nodes", "stall_nodes", "jobs", "window", "overlap"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InputValueError(f"{name}: expected an integer >= 1, got {v!r}")
@@ -77,20 +79,39 @@ class FillSettings:
 
 @dataclass
 class WindowRun:
-    """What one window's search gave: q per solution (frames, H, D), status, node tests, seconds, slide speed,
-    and the search's figures (rejections, deepest frame, paths not written)."""
+    """What one window's searches gave: its pieces (:class:`~torchhand.fill.pieces.Piece`: frames and motions),
+    status ("solved": one search reached the window's end from its first frame; "partial": pieces cover part of
+    it; "failed": none), node tests, seconds, slide speed, the searches (:class:`~torchhand.fill.pieces.Attempt`)
+    and the last search's figures (rejections, deepest frame, paths not written)."""
 
     window: Window
-    qs: list
+    pieces: list
     status: str
     nodes: int
     time_s: float
     slide_speed: float
+    attempts: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
 
+    @property
+    def qs(self) -> list:
+        """The solutions of a window solved whole, each (frames, H, D); empty otherwise."""
+        return list(self.pieces[0].qs) if self.status == "solved" else []
+
+    @property
+    def solved_frames(self) -> int:
+        """Frames of the window inside a piece."""
+        cover = set()
+        for p in self.pieces:
+            cover.update(range(p.start, p.stop))
+        return len(cover)
+
     def to_json(self) -> dict:
-        return {**self.window.to_json(), "status": self.status, "solutions": len(self.qs), "node_tests": self.nodes,
-                "time_s": round(self.time_s, 2), "slide_speed": self.slide_speed, **self.summary}
+        return {**self.window.to_json(), "status": self.status,
+                "solutions": max([len(p.qs) for p in self.pieces if p.kind == "solved"] + [0]),
+                "node_tests": self.nodes, "time_s": round(self.time_s, 2), "slide_speed": self.slide_speed,
+                "pieces": [p.to_json() for p in self.pieces], "searches": [a.to_json() for a in self.attempts],
+                **self.summary}
 
 
 @dataclass
@@ -113,6 +134,7 @@ def run_window(scene, window: Window, settings: FillSettings, phases=None) -> Wi
     from ..synthesis.node_test import NodeTestSettings
     from ..synthesis.pipeline import synthesize
     from .noise import capture_noise
+    from .pieces import search_pieces
     from .prepare import is_capture
 
     t0 = time.perf_counter()
@@ -121,16 +143,23 @@ def run_window(scene, window: Window, settings: FillSettings, phases=None) -> Wi
     if slide is None:
         held = phases or (Phase("contact", 0, sub.T),)
         slide = max(capture_noise(sub, h.side, held).slide_speed for h in sub.hands)
-    res = synthesize(sub, solutions=settings.variants, max_nodes=settings.max_nodes, seed=window.seed,
-                     node_settings=NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(scene)
-                                                    else 1e-3), max_joint_speed=settings.max_joint_speed,
-                     mount_fit=False)
+    ns = NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(scene) else 1e-3)
+
+    def one(part, max_nodes, stall):
+        return synthesize(part, solutions=settings.variants, max_nodes=max_nodes, seed=window.seed,
+                          node_settings=ns, max_joint_speed=settings.max_joint_speed, mount_fit=False,
+                          stall_nodes=stall)
+
+    pieces, attempts, res = search_pieces(scene, window.start, window.stop, budget=settings.max_nodes,
+                                          stall_nodes=settings.stall_nodes, search=one)
     st = res.stats
-    summary = {"rejections": dict(st.rejections), "deepest_frame": st.deepest_frame, "paths_found": st.paths_found,
+    summary = {"rejections": {k: sum(a.rejections.get(k, 0) for a in attempts) for k in st.rejections},
+               "deepest_frame": attempts[0].reached - window.start, "paths_found": st.paths_found,
                "not_written": dataclasses.asdict(res.excluded)}
-    qs = [f.q.detach().double().cpu() for f in res.finals]
-    return WindowRun(window, qs, "solved" if qs else "failed", st.nodes_tested, time.perf_counter() - t0,
-                     float(slide), summary)
+    whole = bool(pieces) and pieces[0].kind == "solved" and pieces[0].start == window.start
+    status = "solved" if whole else "partial" if pieces else "failed"
+    return WindowRun(window, pieces, status, sum(a.nodes for a in attempts), time.perf_counter() - t0,
+                     float(slide), attempts, summary)
 
 
 def clip_phases(phases, start: int, stop: int) -> tuple:
@@ -165,19 +194,22 @@ def _report(progress, run: WindowRun, n: int) -> None:
     if progress is not None:
         w = run.window
         progress(f"window {w.index + 1}/{n} frames {w.start}-{w.stop - 1}: {run.status}, {len(run.qs)} solution(s), "
-                 f"{run.nodes} node tests, {run.time_s:.0f} s, slide speed {run.slide_speed:.3g} m/s")
+                 f"{run.solved_frames}/{w.frames} frames in {len(run.pieces)} piece(s) from {len(run.attempts)} "
+                 f"search(es), {run.nodes} node tests, {run.time_s:.0f} s, slide speed {run.slide_speed:.3g} m/s")
 
 
 def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, window: int = 60, overlap: int = 15,
                  max_nodes: int = 30000, seed: int = 0, phases=None, slide_speed: float | None = None,
                  progress=None, overwrite: bool = False, tolerance=None, jobs: int = 1,
-                 max_joint_speed: float = 8.0, steady_object: bool = True) -> FillResult:
+                 max_joint_speed: float = 8.0, steady_object: bool = True, stall_nodes: int = 5000) -> FillResult:
     """Finger motion for every frame of ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene name or a
     scene directory), written as the result directory ``out`` (docs/fill.md).
 
     side: the hand whose phases set the windows (None: all hands'); variants: motions written (at most the most
     solutions any window found); window, overlap: frames (:func:`~torchhand.fill.windows.plan_windows`);
-    max_nodes: node tests per window; seed: the main seed (each window's is derived from it); phases: the phases
+    max_nodes: node tests per window, shared by its searches; stall_nodes: node tests without a deeper frame
+    after which a window's search stops at a wall and the window goes on past it (:mod:`torchhand.fill.pieces`);
+    seed: the main seed (each window's is derived from it); phases: the phases
     of ``side`` (or the first hand) instead of :func:`~torchhand.fill.phases.segment_phases`'; slide_speed: m/s or
     None (a capture's own noise, 0.02 for other scenes); progress: callable(line) or None; overwrite: replace an
     earlier result directory; tolerance: the wrist tolerance of a capture
@@ -193,7 +225,8 @@ def fill_capture(scene, out, *, side: str | None = None, variants: int = 3, wind
     from .object_rest import ObjectRest
     from .prepare import DEFAULT_SLIDE_SPEED, is_capture, prepare_capture
 
-    settings = FillSettings(variants=variants, window=window, overlap=overlap, max_nodes=max_nodes, seed=seed,
+    settings = FillSettings(variants=variants, window=window, overlap=overlap, max_nodes=max_nodes,
+                            stall_nodes=stall_nodes, seed=seed,
                             jobs=jobs, slide_speed=slide_speed, tolerance=tolerance, max_joint_speed=max_joint_speed)
     t0 = time.perf_counter()
     writer = ResultWriter(out, overwrite=overwrite)           # validated before any work: nothing is lost

@@ -115,14 +115,14 @@ def stitch_variants(runs, phases_union, T: int, rest: torch.Tensor, variants: in
     for v in range(variants):
         q = rest.expand(T, H, D).clone()
         for k, p in enumerate(phases_union):
-            mine = [r for r in runs if r.window.phase == k and r.qs]
+            mine = _pieces([r for r in runs if r.window.phase == k])
             if not mine:
                 continue
             spans, prev = [], None
-            for r in mine:
-                q_w = _pick(r, v, prev)
-                spans.append((r.window.start, r.window.stop, q_w))
-                prev = (r.window.start, r.window.stop, q_w)
+            for a, b, qs in mine:
+                q_w = _pick(a, b, qs, v, prev)
+                spans.append((a, b, q_w))
+                prev = (a, b, q_w)
             for group in _contiguous(spans):
                 a, b = group[0][0], max(s[1] for s in group)
                 q[a:b] = blend_windows(group, a, b)
@@ -133,17 +133,36 @@ def stitch_variants(runs, phases_union, T: int, rest: torch.Tensor, variants: in
     return out, known
 
 
-def _pick(run, v: int, prev) -> torch.Tensor:
-    """Solution v of the first window; afterwards the solution closest to the previous window over the overlap."""
+def _pieces(runs) -> list[tuple[int, int, list]]:
+    """The spans ``(start, stop, motions)`` of the runs, in order of their first frame, without a span that lies
+    inside what the ones before it cover. A run has ``pieces`` (:class:`~torchhand.fill.pieces.Piece`), or a
+    window solved whole and its ``qs``."""
+    spans = []
+    for r in runs:
+        if getattr(r, "pieces", None) is not None:
+            spans += [(p.start, p.stop, list(p.qs)) for p in r.pieces]
+        elif r.qs:
+            spans.append((r.window.start, r.window.stop, list(r.qs)))
+    spans.sort(key=lambda s: (s[0], -s[1]))
+    out, end = [], -1
+    for s in spans:
+        if s[1] > end:
+            out.append(s)
+            end = s[1]
+    return out
+
+
+def _pick(start: int, stop: int, qs: list, v: int, prev) -> torch.Tensor:
+    """Motion v of the first span; afterwards the motion closest to the previous span over their overlap."""
     if prev is None:
-        return run.qs[v % len(run.qs)]
+        return qs[v % len(qs)]
     a, b, q_prev = prev
-    lo, hi = run.window.start, min(b, run.window.stop)
+    lo, hi = start, min(b, stop)
     if hi <= lo:
-        return run.qs[v % len(run.qs)]
+        return qs[v % len(qs)]
     ref = q_prev[lo - a:hi - a]
-    cost = [float((q[:hi - lo] - ref).abs().mean()) for q in run.qs]
-    return run.qs[int(np.argmin(cost))]
+    cost = [float((q[:hi - lo] - ref).abs().mean()) for q in qs]
+    return qs[int(np.argmin(cost))]
 
 
 def _contiguous(spans):

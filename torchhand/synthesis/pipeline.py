@@ -108,6 +108,7 @@ class SynthesisResult:
     keep_unsmoothed: bool = False
     complete: bool = True
     mount_fits: tuple = ()
+    partial: Solution | None = None    # no solution written: the deepest path the search grew, as searched
 
     @property
     def solutions(self) -> tuple:
@@ -233,7 +234,7 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
                max_joint_speed: float = 8.0, keep_unsmoothed: bool = False,
                min_difference: float = math.radians(2.0),
                node_settings: NodeTestSettings = NodeTestSettings(), progress=None,
-               on_solution=None, mount_fit: bool = True) -> SynthesisResult:
+               on_solution=None, mount_fit: bool = True, stall_nodes: int | None = None) -> SynthesisResult:
     """Find up to ``solutions`` finger motions for ``scene`` (a :class:`~torchhand.scene.Scene`, a built-in scene
     name or a scene directory).
 
@@ -253,12 +254,17 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
     mount_fit: a robot hand (a track with a hand file, no ``mount`` and no sidecar ``[mount]``) is first mounted by
     :func:`~torchhand.synthesis.mount_fit.fit_mount`; ``result.scene`` carries the fitted ``mount`` and
     ``result.mount_fits`` the fits. False: the hand-frame rule's mount as it is.
+
+    stall_nodes: stop the search when no path has reached the last frame and the deepest frame reached has not
+    advanced in this many node tests (None: never). When nothing is written, ``result.partial`` holds the deepest
+    path the search grew (:class:`~.search.Solution` over frames ``[0, stats.deepest_frame)``, as searched).
     """
     for name, value in (("solutions", solutions), ("trees", trees), ("candidates", candidates)):
         if not isinstance(value, int) or value < 1:
             raise InputValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    if max_nodes is not None and (not isinstance(max_nodes, int) or max_nodes < 1):
-        raise InputValueError(f"max_nodes: expected an integer >= 1 or None, got {max_nodes!r}")
+    for name, value in (("max_nodes", max_nodes), ("stall_nodes", stall_nodes)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise InputValueError(f"{name}: expected an integer >= 1 or None, got {value!r}")
     for name, value in (("time_budget", time_budget), ("max_joint_speed", max_joint_speed), ("epsilon", epsilon)):
         if value is not None and not value > 0:
             raise InputValueError(f"{name}: expected a positive number, got {value!r}")
@@ -281,7 +287,7 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
     init = prune_patches(problem, gen, settings=node_settings)
     t_prep = time.perf_counter() - t_start
     settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
-                              solutions=solutions, max_nodes=max_nodes,
+                              solutions=solutions, max_nodes=max_nodes, stall_nodes=stall_nodes,
                               time_budget=None if time_budget is None else max(0.0, time_budget - t_prep))
     result = SynthesisResult(problem=problem, scene=scene, finals=[], stats=SearchStats(), settings=settings,
                              node_settings=node_settings, seed=int(seed), max_joint_speed=float(max_joint_speed),
@@ -316,8 +322,10 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
         report("search", nodes_tested=s.stats.nodes_tested, max_nodes=max_nodes, solutions=len(s.solutions),
                dead_ends=s.stats.dead_ends)
 
+    partial = []
     _, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
-                      accept=accept)
+                      accept=accept, partial=partial)
+    result.partial = partial[0] if partial and not result.finals else None
     t_total = time.perf_counter() - t_start
     result.stats = stats
     result.excluded = Exclusions(**excluded)

@@ -20,6 +20,11 @@ failure is a release plan: every finger that failed or carried no force lets go 
 (a deviation that the paper's rules imply but rarely draw: a hand leaving the object must release all its idle
 fingers in one window, and independent per-finger draws give that with probability about 2^-5 per hand). Each
 tree draws from its own ``torch.Generator`` (seeded ``seed + tree``), so a seed reproduces the run.
+
+Stopping: after ``solutions`` accepted paths, after the round in which ``max_nodes`` node tests were run, or (with
+``stall_nodes``) when no path has reached the last frame and the deepest frame has not advanced in that many node
+tests: a wall no path gets through, where more of the same search is wasted. The deepest path grown is kept and
+can be returned (``search(..., partial=[])``): a caller that covers a long clip in pieces goes on from it.
 """
 
 from __future__ import annotations
@@ -59,6 +64,8 @@ class SearchSettings:
     #                                budget in work units, so a seed gives the same run on any machine
     time_budget: float | None = None   # wall-clock cap, seconds (None: none); a run stopped by it depends on the
     #                                machine's speed and load
+    stall_nodes: int | None = None  # stop when no path has reached the last frame and the deepest frame has not
+    #                                advanced in this many node tests (a wall; work units, None: never)
 
 
 @dataclass
@@ -74,7 +81,7 @@ class SearchStats:
     deepest_frame: int = 0           # the furthest frame any path reached
     rejections_by_frame: list = field(default_factory=list)   # per frame [kinematic, finger_finger, dynamic]
     paths_found: int = 0             # distinct full paths found (accepted or not)
-    stopped_by: str = ""             # "solutions", "max_nodes" or "time_budget"
+    stopped_by: str = ""             # "solutions", "max_nodes", "stalled" or "time_budget"
 
 
 @dataclass(frozen=True)
@@ -161,6 +168,9 @@ class _Search:
         self.tip_link = hand.distal_link
         self.tip_local = pad_points(hand)
         self.q_rest = torch.stack([h.q_rest for h in problem.hands])            # (H, D)
+        self.deepest_path: list[_Node] = []      # the nodes of the deepest path any tree has grown
+        self.deepest_tree = -1
+        self.progress_at = 0                     # node tests spent when the deepest frame last advanced
 
     # --- tree bookkeeping -------------------------------------------------------------------------------------
     def _new_uid(self) -> int:
@@ -328,6 +338,9 @@ class _Search:
                 self.stats.stopped_by = "solutions"
             elif s.max_nodes is not None and self.stats.nodes_tested >= s.max_nodes:
                 self.stats.stopped_by = "max_nodes"
+            elif s.stall_nodes is not None and self.stats.paths_found == 0 and \
+                    self.stats.nodes_tested - self.progress_at >= s.stall_nodes:
+                self.stats.stopped_by = "stalled"
             elif s.time_budget is not None and time.perf_counter() - start >= s.time_budget:
                 self.stats.stopped_by = "time_budget"
             else:
@@ -404,7 +417,16 @@ class _Search:
         node.explored.append(guides["guide_obj"][-1] * guides["guiding"][-1][..., None])
         target = 1 if _rand(tree.gen) < 0.5 else 2
         tree.stack.append(_Node(node.t1, node.t1 + w, frames, guides, target, self._new_uid()))
-        self.stats.deepest_frame = max(self.stats.deepest_frame, node.t1 + w)
+        if node.t1 + w > self.stats.deepest_frame:
+            self.stats.deepest_frame = node.t1 + w
+            self.deepest_path, self.deepest_tree = list(tree.stack[1:]), tree.index
+            self.progress_at = self.stats.nodes_tested
+
+    def partial(self) -> Solution | None:
+        """The deepest path grown (frames ``[0, deepest_frame)``, as searched), or None before any node."""
+        if not self.deepest_path:
+            return None
+        return self._solution(self.deepest_tree, self.deepest_path)
 
     def _solution(self, tree_index: int, path: list[_Node]) -> Solution:
         cat = {k: torch.cat([n.frames[k] for n in path]) for k in _KEEP}
@@ -417,14 +439,18 @@ class _Search:
 
 def search(problem: SynthesisProblem, init: InitialSamples, settings: SearchSettings = SearchSettings(), *,
            node_settings: NodeTestSettings = NodeTestSettings(), seed: int = 0, progress=None,
-           accept=None) -> tuple[list[Solution], SearchStats]:
+           accept=None, partial: list | None = None) -> tuple[list[Solution], SearchStats]:
     """Run the search (see the module docstring). Returns the accepted solutions in the order found and the
     counters.
 
     progress: optional callable(search) after every batched expansion (it can read ``search.stats`` and
     ``len(search.solutions)``). accept: optional callable(Solution) -> bool on every new full path, as it is found
-    (the pipeline reconstructs, checks and writes it there); a path it rejects does not count.
+    (the pipeline reconstructs, checks and writes it there); a path it rejects does not count. partial: a list
+    that receives the deepest path grown (a :class:`Solution` over frames ``[0, stats.deepest_frame)``, as
+    searched, not checked as a whole) when no path was accepted and some node was.
     """
     runner = _Search(problem, init, settings, node_settings, seed)
     sols = runner.run(progress, accept)
+    if partial is not None and not sols and runner.deepest_path:
+        partial.append(runner.partial())
     return sols, runner.stats

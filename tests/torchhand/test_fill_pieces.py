@@ -1,0 +1,96 @@
+"""A window searched in pieces (torchhand.fill.pieces): past a wall the window goes on, within its node budget."""
+
+from types import SimpleNamespace
+
+import torch
+
+from torchhand.fill.pieces import BACK, MIN_FRAMES, search_pieces
+
+FAIL_COST, SOLVE_COST = 100, 50
+
+
+class _Clip:
+    def __init__(self, start, stop):
+        self.start, self.stop = start, stop
+
+    def with_frames(self, a, b):
+        return _Clip(self.start + a, self.start + b)
+
+
+def _searcher(walls, log):
+    """A search of frames [c, stop) that no path gets through at a wall frame: it reaches the first wall at or
+    after c (the wall frame itself fails), or solves the clip."""
+    def search(clip, max_nodes, stall):
+        log.append((clip.start, max_nodes, stall))
+        wall = min([w for w in walls if clip.start <= w < clip.stop], default=None)
+        T = clip.stop - clip.start
+        if wall is None:
+            q = torch.full((T, 1, 2), float(clip.start))
+            stats = SimpleNamespace(nodes_tested=SOLVE_COST, deepest_frame=T, stopped_by="solutions",
+                                    rejections={"kinematic": 0}, paths_found=1)
+            return SimpleNamespace(stats=stats, finals=[SimpleNamespace(q=q)], partial=None)
+        d = wall - clip.start
+        stats = SimpleNamespace(nodes_tested=FAIL_COST, deepest_frame=d, stopped_by="stalled",
+                                rejections={"kinematic": 3}, paths_found=0)
+        part = SimpleNamespace(q=torch.full((d, 1, 2), float(clip.start))) if d else None
+        return SimpleNamespace(stats=stats, finals=[], partial=part)
+    return search
+
+
+def test_a_window_without_walls_is_one_solved_piece():
+    log = []
+    pieces, attempts, _ = search_pieces(_Clip(0, 100), 40, 100, budget=1000, stall_nodes=7,
+                                        search=_searcher([], log))
+    assert [(p.start, p.stop, p.kind) for p in pieces] == [(40, 100, "solved")]
+    assert pieces[0].qs[0].shape == (60, 1, 2) and pieces[0].qs[0].dtype == torch.float64
+    assert log == [(40, 1000, 7)] and attempts[0].stopped_by == "solutions" and attempts[0].reached == 100
+
+
+def test_past_a_wall_the_window_goes_on_and_the_wall_frame_stays_unclaimed():
+    log = []
+    pieces, attempts, _ = search_pieces(_Clip(0, 100), 0, 60, budget=1000, stall_nodes=7,
+                                        search=_searcher([20], log))
+    # the deepest path to the wall; a fresh search from just before it dies there too; one at the wall fails its
+    # first frame; the next starts past it and reaches the end
+    assert [a[0] for a in log] == [0, 20 - BACK, 20, 21]
+    assert [(p.start, p.stop, p.kind) for p in pieces] == [(0, 20, "partial"), (21, 60, "solved")]
+    assert [a.reached for a in attempts] == [20, 20, 20, 60]
+    assert [a[1] for a in log] == [1000, 900, 800, 700]              # one budget, shared
+    assert all(float(p.qs[0][0, 0, 0]) == p.start for p in pieces)   # each piece is its own search's motion
+
+
+def test_repeated_failures_skip_further_and_the_budget_bounds_the_work():
+    log = []
+    walls = [20, 21, 22, 23]                                          # a wall four frames thick
+    pieces, attempts, _ = search_pieces(_Clip(0, 100), 0, 60, budget=10_000, stall_nodes=7,
+                                        search=_searcher(walls, log))
+    assert [a[0] for a in log] == [0, 15, 20, 21, 23, 27]            # at the wall, then 1, 3, 7 frames past it
+    assert [(p.start, p.stop, p.kind) for p in pieces] == [(0, 20, "partial"), (27, 60, "solved")]
+    log.clear()
+    pieces, attempts, _ = search_pieces(_Clip(0, 100), 0, 60, budget=250, stall_nodes=7,
+                                        search=_searcher(walls, log))
+    assert len(log) == 3 and sum(a.nodes for a in attempts) == 300 and pieces[-1].stop == 20
+
+
+def test_no_search_on_the_last_few_frames():
+    log = []
+    stop = 60
+    pieces, _, _ = search_pieces(_Clip(0, 100), 0, stop, budget=10_000, stall_nodes=7,
+                                 search=_searcher([stop - MIN_FRAMES + 1], log))
+    assert [(p.start, p.stop) for p in pieces] == [(0, stop - MIN_FRAMES + 1)]
+    assert all(stop - a[0] >= MIN_FRAMES for a in log)
+
+
+def test_a_real_search_keeps_its_deepest_path():
+    """synthesize's ``partial``: the deepest path the search grew, frames [0, deepest_frame), when none is
+    written; a search stopped by its stall rule says so."""
+    import torchhand
+    from torchhand.synthesis.pipeline import synthesize
+
+    scene = torchhand.load_scene("box-turn").with_frames(0, 30)
+    res = synthesize(scene, solutions=1, max_nodes=1, seed=0, stall_nodes=1)
+    assert res.finals == [] and res.partial is not None
+    assert res.partial.q.shape[0] == res.stats.deepest_frame > 0
+    assert res.partial.q.shape[1:] == (1, res.problem.hands[0].num_joints)
+    assert res.stats.stopped_by in ("max_nodes", "stalled")
+    assert torch.isfinite(res.partial.q).all() and res.partial.c_force.shape[0] == res.stats.deepest_frame
