@@ -199,6 +199,10 @@ def test_fill_writes_a_checked_result_covering_every_frame(filled):
     stats = json.loads((out / "stats.json").read_text())
     assert stats["complete"] and stats["T"] == T and stats["fill"]["coverage"] == 1.0
     assert len(stats["fill"]["window_time_s"]) == 1 and stats["time_s"] > 0
+    png = (out / "timeline.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+    from torchhand.fill.timeline import main as redraw
+    assert redraw([str(out), str(out.parent / "again.png")]) == 0 and (out.parent / "again.png").stat().st_size > 5000
 
 
 def test_a_failed_window_is_flagged_and_counted_apart(tmp_path):

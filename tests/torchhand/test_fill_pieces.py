@@ -94,3 +94,34 @@ def test_a_real_search_keeps_its_deepest_path():
     assert res.partial.q.shape[1:] == (1, res.problem.hands[0].num_joints)
     assert res.stats.stopped_by in ("max_nodes", "stalled")
     assert torch.isfinite(res.partial.q).all() and res.partial.c_force.shape[0] == res.stats.deepest_frame
+
+
+def test_a_window_that_raises_is_reported_and_the_others_are_kept(tmp_path, monkeypatch):
+    import json
+    import sys
+    from pathlib import Path
+
+    import torchhand.fill.run as run_mod
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_fill import PHASES, _scene
+
+    real = run_mod.run_window
+
+    def flaky(scene, window, settings, phases=None):
+        if window.index == 1:
+            raise RuntimeError("boom in the second window")
+        return real(scene, window, settings, phases)
+
+    monkeypatch.setattr(run_mod, "run_window", flaky)
+    lines = []
+    res = run_mod.fill_capture(_scene(), tmp_path / "o", phases=PHASES, variants=1, window=6, overlap=2,
+                               max_nodes=300, seed=0, progress=lines.append)
+    assert [r.status for r in res.windows][1] == "error" and res.windows[0].status != "error"
+    assert any("boom in the second window" in line for line in lines)
+    doc = json.loads((tmp_path / "o" / "phases.json").read_text())
+    w = doc["windows"][1]
+    assert w["status"] == "error" and w["error"] == "RuntimeError: boom in the second window"
+    assert "flaky" in w["traceback"] and w["slide_speed"] is None
+    only_1 = [f for f in range(6, 12) if not any(p["start"] <= f < p["stop"] for p in doc["windows"][0]["pieces"])]
+    assert (res.frame_status[0][only_1] == 2).all()

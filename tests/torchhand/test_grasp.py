@@ -11,8 +11,7 @@ import torch
 
 from torchhand.cli import main as cli
 from torchhand.errors import FileFormatError, InputValueError, MissingFileError, ShapeError, UnknownNameError
-from torchhand.manipulation import (Grasp, grasp_from_qpos, grasp_from_result, grasp_hand, load_grasp, make_grasp,
-                                    save_grasp, snap_grasp)
+from torchhand.manipulation import (Grasp, grasp_from_qpos, grasp_from_result, grasp_hand, load_grasp, save_grasp, snap_grasp)
 from torchhand.manipulation.snap import hand_surface_in_object, signed_distance
 
 # box-turn's first 8 frames with a small search: a real result in a few seconds (as test_synthesis_output.py), for

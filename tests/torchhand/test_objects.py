@@ -3,7 +3,6 @@ open and too-open meshes, repair, surface sampling, content hash, and errors."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np

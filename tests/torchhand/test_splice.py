@@ -4,8 +4,6 @@ spliced BVH, the command line and its errors (Majkowska et al. 2006; docs/splice
 from __future__ import annotations
 
 import json
-import math
-import sys
 
 import numpy as np
 import pytest

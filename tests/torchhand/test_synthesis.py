@@ -4,12 +4,10 @@ built-in scene checked with exact geometry, the result-directory contract, and b
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
 import torch
-import trimesh
 from scipy.spatial.transform import Rotation
 
 import torchhand

@@ -90,6 +90,12 @@ def run(args) -> int:
           f"{result.time_s:.0f} s; {sum(r.status == 'solved' for r in result.windows)}/{len(result.windows)} "
           f"windows solved whole, {sum(r.status == 'partial' for r in result.windows)} in part; contact-phase frames solved {100 * result.coverage:.1f} %; unsolved frames per motion "
           f"{unsolved} (phases.json, frame_status)")
+    errors = [r for r in result.windows if r.status == "error"]
+    if errors:
+        print(f"{len(errors)} window(s) stopped with an error (their frames are flagged unsolved): "
+              + "; ".join(f"frames {r.window.start}-{r.window.stop - 1}: {r.summary['error']}" for r in errors),
+              file=sys.stderr)
+        return 1
     if result.windows and not any(r.pieces for r in result.windows):
         print("no window found a solution: every contact frame is flagged unsolved. Try a larger --max-nodes, another "
               "--seed or shorter windows (docs/fill.md); phases.json lists each window's rejections.", file=sys.stderr)

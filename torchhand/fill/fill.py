@@ -70,7 +70,7 @@ def finish(prepared, phases, runs, settings, writer, t0: float, say, source: str
     variants = min(settings.variants, max([len(p.qs) for r in runs for p in r.pieces] + [1]))
     motions, known = stitch_variants(runs, phases, scene.T, rest, variants, settings.max_joint_speed, scene.fps)
     # the whole motion's test: the largest slide speed of any window (the most permissive of their sliding rules)
-    slide = max([r.slide_speed for r in runs] or [settings.slide_speed or 0.02])
+    slide = max([r.slide_speed for r in runs if r.slide_speed is not None] or [settings.slide_speed or 0.02])
     ns = NodeTestSettings(slide_speed=slide, table_slide_speed=slide if is_capture(prepared.scene) else 1e-3)
     failed = np.zeros(scene.T, dtype=bool)          # frames of windows that no piece of any window covers
     for r in runs:
@@ -154,6 +154,7 @@ def _final(res, q: torch.Tensor, v: int, problem):
 def _write(writer, result, frame_status, prepared, phases, runs, settings, coverage, contact, source) -> Path:
     from ..synthesis.output import solution_arrays, stats_dict
     from .captured import result_reference
+    from .timeline import plot_timeline
 
     writer.start(result.problem, result.scene)
     for v in range(len(result.finals)):
@@ -172,6 +173,7 @@ def _write(writer, result, frame_status, prepared, phases, runs, settings, cover
            "coverage": coverage,
            "unsolved_frames": [np.nonzero(s == FRAME_UNSOLVED)[0].tolist() for s in frame_status]}
     atomic_json(writer.stage / "phases.json", doc)
+    plot_timeline(doc, frame_status, writer.stage / "timeline.png", title=result.scene.name)
     stats = stats_dict(result)
     stats["fill"] = {"window": settings.window, "overlap": settings.overlap, "variants": settings.variants,
                      "max_nodes_per_window": settings.max_nodes,

@@ -81,7 +81,8 @@ class FillSettings:
 class WindowRun:
     """What one window's searches gave: its pieces (:class:`~torchhand.fill.pieces.Piece`: frames and motions),
     status ("solved": one search reached the window's end from its first frame; "partial": pieces cover part of
-    it; "failed": none), node tests, seconds, slide speed, the searches (:class:`~torchhand.fill.pieces.Attempt`)
+    it; "failed": none; "error": its search raised an error, in ``summary``), node tests, seconds, slide speed
+    (None after an error), the searches (:class:`~torchhand.fill.pieces.Attempt`)
     and the last search's figures (rejections, deepest frame, paths not written)."""
 
     window: Window
@@ -89,7 +90,7 @@ class WindowRun:
     status: str
     nodes: int
     time_s: float
-    slide_speed: float
+    slide_speed: float | None
     attempts: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
 
@@ -173,25 +174,57 @@ def _search(scene, windows, settings: FillSettings, progress, phases=()) -> list
     if settings.jobs == 1 or len(windows) <= 1:
         runs = []
         for w in windows:
-            runs.append(run_window(scene, w, settings, own[w.index]))
+            try:
+                runs.append(run_window(scene, w, settings, own[w.index]))
+            except Exception as exc:                   # kept and reported: the other windows' work is not lost
+                runs.append(_errored(w, exc, progress))
             _report(progress, runs[-1], len(windows))
         return runs
     import concurrent.futures as cf
     import multiprocessing as mp
 
     done: dict[int, WindowRun] = {}
-    with cf.ProcessPoolExecutor(max_workers=settings.jobs, mp_context=mp.get_context("spawn"),
-                                initializer=torch.set_num_threads, initargs=(1,)) as pool:   # one thread each
-        futures = {pool.submit(run_window, scene, w, settings, own[w.index]): w.index for w in windows}
+    pool = cf.ProcessPoolExecutor(max_workers=settings.jobs, mp_context=mp.get_context("spawn"),
+                                  initializer=torch.set_num_threads, initargs=(1,))   # one thread each
+    try:
+        futures = {pool.submit(run_window, scene, w, settings, own[w.index]): w for w in windows}
         for fut in cf.as_completed(futures):
-            run = fut.result()
+            w = futures[fut]
+            try:
+                run = fut.result()
+            except cf.process.BrokenProcessPool:
+                raise
+            except Exception as exc:                   # kept and reported: the other windows' work is not lost
+                run = _errored(w, exc, progress)
             done[run.window.index] = run
             _report(progress, run, len(windows))
+    except BaseException:
+        # an error (or an interrupt) ends the run now: the windows still queued are not searched first
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.terminate()
+        raise
+    pool.shutdown()
     return [done[w.index] for w in windows]
 
 
-def _report(progress, run: WindowRun, n: int) -> None:
+def _errored(window: Window, exc: BaseException, progress) -> WindowRun:
+    """The run of a window whose search raised an error: no piece, status "error", the error in its summary and,
+    in full, on the progress stream."""
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
     if progress is not None:
+        progress(f"window {window.index + 1} frames {window.start}-{window.stop - 1}: error, its frames are flagged "
+                 f"unsolved:\n{text}")
+    return WindowRun(window, [], "error", 0, 0.0, None,
+                     summary={"error": f"{type(exc).__name__}: {exc}", "traceback": text[-4000:]})
+
+
+def _report(progress, run: WindowRun, n: int) -> None:
+    if progress is not None and run.status == "error":
+        progress(f"window {run.window.index + 1}/{n}: {run.summary['error']}")
+    elif progress is not None:
         w = run.window
         progress(f"window {w.index + 1}/{n} frames {w.start}-{w.stop - 1}: {run.status}, {len(run.qs)} solution(s), "
                  f"{run.solved_frames}/{w.frames} frames in {len(run.pieces)} piece(s) from {len(run.attempts)} "
