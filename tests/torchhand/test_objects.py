@@ -257,3 +257,19 @@ def test_shared_mug_and_bunny_load():
     hull = bunny.mesh.convex_hull
     assert bunny.mass == pytest.approx(1000.0 * hull.volume) and bunny.mass > 0.76
     np.testing.assert_allclose(bunny.com, hull.center_mass, atol=1e-12)
+
+
+def test_a_pickled_object_keeps_working_proximity_queries():
+    """A rigid object sent to a worker process (``torchhand fill --jobs N``) is pickled; trimesh's spatial index,
+    once built, pickles empty and every closest-point query on the copy then fails. The object is pickled without
+    the mesh's cache."""
+    import pickle
+
+    obj = RigidObject.from_trimesh(trimesh.creation.annulus(r_min=0.02, r_max=0.04, height=0.05), mass=0.2)
+    pts = np.array([[0.03, 0.0, 0.04], [0.0, 0.0, 0.0], [0.1, 0.05, -0.02]])
+    want = trimesh.proximity.closest_point(obj.mesh, pts)[1]              # builds the index
+    again = pickle.loads(pickle.dumps(obj))
+    np.testing.assert_allclose(trimesh.proximity.closest_point(again.mesh, pts)[1], want, rtol=0, atol=1e-12)
+    assert (again.name, again.mass, again.watertight) == (obj.name, obj.mass, obj.watertight)
+    np.testing.assert_array_equal(again.com, obj.com)
+    np.testing.assert_array_equal(again.mesh.faces, obj.mesh.faces)

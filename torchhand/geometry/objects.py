@@ -72,6 +72,12 @@ class RigidObject:
     inertia: np.ndarray
     watertight: bool
 
+    def __reduce__(self):
+        # pickled (to a worker process, say) without the mesh's cache: a trimesh spatial index (rtree) built
+        # before pickling comes back empty, and every proximity query on the copy then fails
+        return (type(self), (self.name, self.mesh.copy(include_cache=False), self.mass, self.com, self.inertia,
+                             self.watertight))
+
     @classmethod
     def from_trimesh(
         cls,
