@@ -149,3 +149,35 @@ def test_windows_in_worker_processes_give_the_same_result(tmp_path):
     np.testing.assert_array_equal(got[1].frame_status, got[2].frame_status)
     for a, b in zip(got[1].windows, got[2].windows):
         assert a.nodes == b.nodes and all(torch.equal(x, y) for x, y in zip(a.qs, b.qs))
+
+
+def test_clamped_motion_keeps_the_speed_and_acceleration_bounds():
+    from torchhand.fill.stitch import clamp_speed, max_speed
+
+    g = torch.Generator().manual_seed(0)
+    q = torch.cumsum(torch.randn(200, 1, 4, generator=g, dtype=torch.float64) * 0.4, 0)
+    q[50:60] = q[49]                                                  # a still stretch stays still where it can
+    fps, speed = 30.0, 8.0
+    out = clamp_speed(q, speed / fps)
+    assert max_speed(q, fps) > 3 * speed and max_speed(out, fps) <= speed * (1 + 1e-12)
+    acc = ((out[2:] - 2 * out[1:-1] + out[:-2]).abs().amax() * fps ** 2).item()
+    assert acc <= 2 * speed * fps * (1 + 1e-12)                       # the checker's 480 rad/s^2 at 8 rad/s, 30 fps
+    assert torch.equal(out[0], q[0])
+    slow = torch.linspace(0, 1, 100, dtype=torch.float64)[:, None, None].expand(100, 1, 3) * 0.1
+    assert torch.equal(clamp_speed(slow, speed / fps), slow)          # within the bound: unchanged
+
+
+def test_copies_of_a_motion_are_not_written_twice():
+    import numpy as np
+
+    from torchhand.fill.fill import _distinct
+
+    a = torch.zeros(10, 1, 3, dtype=torch.float64)
+    near = a + 0.01                                                    # 0.6 degrees everywhere
+    far = a.clone()
+    far[4:] += 0.2
+    solved = np.zeros(10, dtype=np.int8)
+    first_half = solved.copy()
+    first_half[4:] = 2                                                 # claims only frames 0-3, where it equals a
+    assert _distinct([a, near, far], [solved] * 3) == [0, 2]
+    assert _distinct([a, far], [solved, first_half]) == [0]

@@ -6,6 +6,7 @@ codes. :mod:`torchhand.fill.run` runs the stages; docs/fill.md is the user's vie
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import torch
 from .._atomic import atomic_json
 from ..errors import InputValueError
 from .phases import PHASE_KINDS, Phase, phases_from_codes
-from .stitch import stitch_variants
+from .stitch import clamp_speed, stitch_variants
 
 __all__ = ["FRAME_SOLVED", "FRAME_FREE", "FRAME_UNSOLVED", "finish", "hand_phases", "union_phases"]
 
@@ -87,7 +88,13 @@ def finish(prepared, phases, runs, settings, writer, t0: float, say, source: str
         ok = res.feasible.cpu().numpy()
         st = np.where(ok & known, FRAME_SOLVED, np.where(ok & ~failed, FRAME_FREE, FRAME_UNSOLVED)).astype(np.int8)
         status.append(st)
-        finals.append(_final(res, q, v, problem))
+        finals.append((q, res))
+    keep = _distinct([q for q, _ in finals], status)
+    if len(keep) < len(finals):
+        say(f"{len(finals) - len(keep)} stitched motion(s) left out: within 2 degrees of mean joint angle of an "
+            f"earlier one over their solved frames")
+    finals = [_final(finals[v][1], finals[v][0], i, problem) for i, v in enumerate(keep)]
+    status = [status[v] for v in keep]
     stats = SearchStats(nodes_tested=sum(r.nodes for r in runs),
                         rejections={k: sum(r.summary.get("rejections", {}).get(k, 0) for r in runs)
                                     for k in ("kinematic", "finger_finger", "dynamic")},
@@ -137,7 +144,26 @@ def _settle(problem, q: torch.Tensor, known: np.ndarray, ns, settings):
     if bool(broken.any()):
         q_rec = _blend_in(q_rec, q, broken)
         res = _evaluate_motion(problem, q_rec, ns)
+    # the searched poses blended back (and a partial path's own steps) may move faster than the bound: every step
+    # is clipped to it, and the clipped motion is what is tested and written
+    step = settings.max_joint_speed / problem.fps
+    clipped = clamp_speed(q_rec, step * (1 - 1e-9))
+    if not torch.equal(clipped, q_rec):
+        q_rec = clipped
+        res = _evaluate_motion(problem, q_rec, ns)
     return q_rec, res
+
+
+def _distinct(motions: list, status: list, min_difference: float = math.radians(2.0)) -> list[int]:
+    """Indices of the motions kept: each one's mean absolute joint difference to every motion kept before it, over
+    the frames it claims solved, is at least ``min_difference`` radians (variants stitched from the same one-motion
+    pieces are otherwise copies)."""
+    keep = []
+    for v, q in enumerate(motions):
+        rows = torch.as_tensor(status[v] == FRAME_SOLVED)
+        if not rows.any() or all(float((q[rows] - motions[u][rows]).abs().mean()) >= min_difference for u in keep):
+            keep.append(v)
+    return keep or [0]
 
 
 def _final(res, q: torch.Tensor, v: int, problem):

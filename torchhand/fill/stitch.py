@@ -19,7 +19,7 @@ import math
 import numpy as np
 import torch
 
-__all__ = ["smoothstep", "blend_windows", "fill_free", "max_speed", "stitch_variants"]
+__all__ = ["smoothstep", "blend_windows", "fill_free", "max_speed", "stitch_variants", "clamp_speed"]
 
 
 def smoothstep(n: int, dtype=torch.float64) -> torch.Tensor:
@@ -93,6 +93,17 @@ def _runs(mask: torch.Tensor) -> list[tuple[int, int]]:
     m = torch.cat([torch.zeros(1, dtype=torch.int8), mask.to(torch.int8), torch.zeros(1, dtype=torch.int8)])
     d = m[1:] - m[:-1]
     return list(zip((d == 1).nonzero().squeeze(1).tolist(), (d == -1).nonzero().squeeze(1).tolist()))
+
+
+def clamp_speed(q: torch.Tensor, max_step: float) -> torch.Tensor:
+    """q (T, ...) with every frame-to-frame step held within ``max_step`` (radians per frame), in one forward
+    pass: each frame is clipped to its (already clipped) predecessor's box. The result's speed is at most
+    ``max_step * fps`` and so its acceleration at most ``2 max_step * fps^2``; frames already within the bound
+    are unchanged."""
+    out = q.clone()
+    for t in range(1, q.shape[0]):
+        out[t] = torch.minimum(torch.maximum(out[t], out[t - 1] - max_step), out[t - 1] + max_step)
+    return out
 
 
 def max_speed(q: torch.Tensor, fps: float) -> float:
