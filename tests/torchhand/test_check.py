@@ -519,3 +519,25 @@ def test_mjcf_depth_asks_trimesh_only_inside_the_bounding_box():
                 outside += 1
                 assert truth - 1e-12 <= ours <= 0.0
     assert inside >= 10 and outside >= 10
+
+
+def test_signed_distance_sign_survives_a_flipped_face_region():
+    """The nearest face's plane decides inside/outside only where the ray test agrees; where they disagree (a
+    defective mesh: here a second, inside-out cube), the exact winding number does."""
+    import trimesh
+
+    from torchhand.check.geometry import winding_number
+
+    good = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    bad = trimesh.creation.box(extents=(0.04, 0.04, 0.04))
+    bad.apply_translation((0.2, 0.0, 0.0))
+    bad.invert()                                                          # normals point in
+    mesh = trimesh.util.concatenate([good, bad])
+    obj = object_mesh(mesh, 1.0)
+    pts = np.array([[0.0, 0.0, 0.0],            # inside the good cube
+                    [0.2 + 0.03, 0.0, 0.0],     # outside the inverted cube, 1 cm from its face
+                    [0.0, 0.0, 0.08]])          # outside both
+    np.testing.assert_allclose(winding_number(mesh.triangles.view(np.ndarray), pts), [1.0, 0.0, 0.0], atol=1e-9)
+    sd = obj.signed_distance(pts)                                         # positive inside
+    assert sd[0] > 0 and sd[1] < 0 and sd[2] < 0
+    np.testing.assert_allclose(np.abs(sd), [0.05, 0.01, 0.03], atol=1e-12)
