@@ -32,7 +32,10 @@ from .errors import InputValueError, TorchhandError
 
 __all__ = ["PORTABLE_ENV", "NumericsProfile", "describe", "pin_for_command", "portable_env", "reproducible"]
 
-_NPY_AVX512 = ("AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR")
+# NumPy < 2.4 names its AVX-512 dispatch targets by feature group (AVX512_SKX, ...); NumPy 2.4 groups them as the
+# x86-64 microarchitecture level X86_V4 (plus AVX512_ICL, AVX512_SPR). Unknown names are ignored by either.
+_NPY_AVX512 = ("X86_V4 AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
+               "AVX512_SPR")
 
 PORTABLE_ENV: dict[str, str] = {
     "ATEN_CPU_CAPABILITY": "avx2",
@@ -159,13 +162,21 @@ def describe() -> NumericsProfile:
         pass
     numpy_avx512 = False
     if "numpy" in sys.modules:
-        numpy_avx512 = bool(_numpy_features().get("AVX512F", False))
+        numpy_avx512 = _numpy_avx512(_numpy_features())
     want = portable_env()
     in_force = bool(want) and all(os.environ.get(k) == v for k, v in want.items()) and cap == "AVX2"
     mode = "portable" if in_force else ("native" if requested_mode() == "native" else "mixed")
     return NumericsProfile(mode=mode, torch_capability=cap, mkl_cbwr=os.environ.get("MKL_CBWR"),
                            openblas_coretype=os.environ.get("OPENBLAS_CORETYPE"), openblas=openblas,
                            numpy_avx512=numpy_avx512)
+
+
+def _numpy_avx512(features: dict) -> bool:
+    """Whether NumPy dispatches to AVX-512 loops: its X86_V4 (or AVX512_ICL/SPR) targets on NumPy >= 2.4, where the
+    raw AVX512F flag stays set when they are disabled; its AVX512F feature before."""
+    if "X86_V4" in features:
+        return any(bool(features.get(k, False)) for k in ("X86_V4", "AVX512_ICL", "AVX512_SPR"))
+    return bool(features.get("AVX512F", False))
 
 
 def _numpy_features() -> dict:

@@ -147,7 +147,7 @@ def _settle(problem, q: torch.Tensor, known: np.ndarray, ns, settings):
     # the searched poses blended back (and a partial path's own steps) may move faster than the bound: every step
     # is clipped to it, and the clipped motion is what is tested and written
     step = settings.max_joint_speed / problem.fps
-    clipped = clamp_speed(q_rec, step * (1 - 1e-9))
+    clipped = clamp_speed(q_rec, step * (1 - 1e-3))   # a margin for the written file's float32 rounding
     if not torch.equal(clipped, q_rec):
         q_rec = clipped
         res = _evaluate_motion(problem, q_rec, ns)

@@ -228,6 +228,20 @@ def _duplicate(q: torch.Tensor, earlier: list, min_difference: float) -> bool:
     return any(float((q - f.q).abs().mean()) < min_difference for f in earlier)
 
 
+def _check_arguments(**a) -> None:
+    """One line (InputValueError) for the first bad count, budget or positive number of :func:`synthesize`."""
+    for name in ("solutions", "trees", "candidates"):
+        if not isinstance(a[name], int) or a[name] < 1:
+            raise InputValueError(f"{name}: expected an integer >= 1, got {a[name]!r}")
+    for name in ("max_nodes", "stall_nodes"):
+        v = a[name]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise InputValueError(f"{name}: expected an integer >= 1 or None, got {v!r}")
+    for name in ("time_budget", "max_joint_speed", "epsilon"):
+        if a[name] is not None and not a[name] > 0:
+            raise InputValueError(f"{name}: expected a positive number, got {a[name]!r}")
+
+
 def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MAX_NODES,
                time_budget: float | None = None, seed: int = 0, epsilon: float = 10.0, strategy: str = "mixed",
                device="cpu", dtype=torch.float32, trees: int = 16, candidates: int = 16, reconstruct: bool = True,
@@ -259,15 +273,8 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
     advanced in this many node tests (None: never). When nothing is written, ``result.partial`` holds the deepest
     path the search grew (:class:`~.search.Solution` over frames ``[0, stats.deepest_frame)``, as searched).
     """
-    for name, value in (("solutions", solutions), ("trees", trees), ("candidates", candidates)):
-        if not isinstance(value, int) or value < 1:
-            raise InputValueError(f"{name}: expected an integer >= 1, got {value!r}")
-    for name, value in (("max_nodes", max_nodes), ("stall_nodes", stall_nodes)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise InputValueError(f"{name}: expected an integer >= 1 or None, got {value!r}")
-    for name, value in (("time_budget", time_budget), ("max_joint_speed", max_joint_speed), ("epsilon", epsilon)):
-        if value is not None and not value > 0:
-            raise InputValueError(f"{name}: expected a positive number, got {value!r}")
+    _check_arguments(solutions=solutions, trees=trees, candidates=candidates, max_nodes=max_nodes,
+                     stall_nodes=stall_nodes, time_budget=time_budget, max_joint_speed=max_joint_speed, epsilon=epsilon)
     t_start = time.perf_counter()
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
