@@ -292,9 +292,14 @@ def plot_comparison(cmp: FingerComparison, path, *, fps: float, title: str = "")
     bx.set_title("contact: captured (upper, light) and synthesized (lower, dark)", fontsize=9)
     if title:
         fig.suptitle(title)
+    return save_png(fig, path)
+
+
+def save_png(fig, path, dpi: int = 90) -> Path:
+    """A matplotlib figure laid out and written as a PNG at ``path``, atomically. Returns the path."""
     fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.savefig(buf, format="png", dpi=dpi)
     path = Path(path)
     atomic_bytes(path, buf.getvalue())
     return path

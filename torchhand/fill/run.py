@@ -46,7 +46,8 @@ __all__ = ["FillSettings", "WindowRun", "FillResult", "fill_capture", "run_windo
 class FillSettings:
     """variants: solutions per window and written motions; window, overlap: frames; max_nodes: node tests per
     window (shared by its pieces, :mod:`torchhand.fill.pieces`); stall_nodes: node tests without a deeper frame
-    after which a search of a window stops at a wall and the window goes on past it; seed: the run's seed; jobs: windows searched at once (processes); slide_speed: m/s or None (each
+    after which a search of a window stops at a wall and the window goes on past it; seed: the run's seed; jobs:
+    windows searched at once (processes); slide_speed: m/s or None (each
     window's noise); tolerance: :class:`~torchhand.fill.wrist.WristTolerance` or None (5 mm, 3 degrees);
     max_joint_speed: rad/s."""
 

@@ -7,14 +7,13 @@
 
 from __future__ import annotations
 
-import io
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_bytes
+from .reference import save_png
 
 __all__ = ["plot_timeline", "PHASE_COLOURS", "STATUS_COLOURS"]
 
@@ -81,12 +80,7 @@ def plot_timeline(doc: dict, frame_status: np.ndarray, path, *, title: str = "")
     cov = doc.get("coverage")
     fig.suptitle((title + "  " if title else "") + (f"contact-phase frames solved {100 * cov:.1f} %"
                                                     if cov is not None else ""), fontsize=10)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    path = Path(path)
-    atomic_bytes(path, buf.getvalue())
-    return path
+    return save_png(fig, path)
 
 
 def main(argv=None) -> int:
