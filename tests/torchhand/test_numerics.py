@@ -94,11 +94,44 @@ def test_reproducible_before_and_after_numpy():
     assert run.returncode == 1 and "numpy already loaded without" in run.stderr
 
 
+REFERENCE = ROOT / "tests" / "data" / "readme_box_turn.npz"
+# Tolerances of the comparison with the reference solutions (written where the digest was recorded): the same
+# answer (the same ten solutions, the same contacts frame by frame) whatever the last bits of the arithmetic.
+Q_TOL = 1e-4            # radians
+
+
+def compare_with_reference(out: Path) -> list[str]:
+    """Differences between the solutions in ``out`` and tests/data/readme_box_turn.npz: every solution's contact
+    structure (which links touch, which slide, the table's contacts) equal, and its joint angles within
+    :data:`Q_TOL`. Returns one line per difference (empty: the same answer)."""
+    import numpy as np
+
+    ref = np.load(REFERENCE)
+    files = sorted((out / "solutions").glob("sol_*.npz"))
+    n_ref = sum(1 for k in ref.files if k.startswith("q_"))
+    if len(files) != n_ref:
+        return [f"{len(files)} solutions, the reference has {n_ref}"]
+    bad = []
+    for i, f in enumerate(files):
+        z = np.load(f)
+        for k in ("contact_mask", "contact_link", "contact_sliding", "env_contact_mask"):
+            if z[k].shape != ref[f"{k}_{i}"].shape or not np.array_equal(z[k], ref[f"{k}_{i}"]):
+                bad.append(f"{f.name}: {k} differs")
+        q, q_ref = z["q"], ref[f"q_{i}"].astype(np.float64)
+        if q.shape != q_ref.shape:
+            bad.append(f"{f.name}: q has shape {q.shape}, the reference {q_ref.shape}")
+        elif not np.allclose(q, q_ref, rtol=0.0, atol=Q_TOL):
+            bad.append(f"{f.name}: q differs by up to {np.abs(q - q_ref).max():.3g} rad")
+    return bad
+
+
 @needs_avx2
 def test_readme_main_command_writes_the_recorded_solutions(tmp_path):
     """`torchhand synthesize box-turn --out DIR` exactly as the README gives it (ten solutions within 60000 node
-    tests, seed 0, one thread): the digest of its solution arrays is docs/synthesis.md's, whatever this process'
-    CPU settings are (CI runs it under two)."""
+    tests, seed 0, one thread), whatever this process' CPU settings are (CI runs it under two): the same ten
+    solutions as tests/data/readme_box_turn.npz (contacts equal frame by frame, joint angles within 1e-4 rad), and
+    where the digest of the solution arrays differs from docs/synthesis.md's, a warning (docs/synthesis.md, "A known
+    gap": machines of two makers still differ in the last bits)."""
     out = tmp_path / "box-turn"
     run = _torchhand(["synthesize", "box-turn", "--out", str(out), "--no-progress"])
     assert run.returncode == 0, run.stderr[-2000:]
@@ -111,4 +144,45 @@ def test_readme_main_command_writes_the_recorded_solutions(tmp_path):
         pytest.skip(f"the digest is recorded for torch >= {'.'.join(map(str, DIGEST_FROM_TORCH))}; torch "
                     f"{torch.__version__}: 10 solutions after {stats['nodes_tested']} node tests, digest "
                     f"{solutions_digest(out)[:12]}")
-    assert solutions_digest(out) == recorded_digest(), (stats["nodes_tested"], solutions_digest(out))
+    assert stats["nodes_tested"] == 11959, stats["nodes_tested"]
+    differences = compare_with_reference(out)
+    assert not differences, differences
+    digest = solutions_digest(out)
+    if digest != recorded_digest():
+        import warnings
+        warnings.warn(f"the README's main command wrote the same solutions within {Q_TOL} rad, but their digest "
+                      f"{digest[:12]} is not docs/synthesis.md's {recorded_digest()[:12]}", stacklevel=1)
+
+
+def test_the_reference_comparison_sees_a_changed_solution(tmp_path):
+    """The comparison of the README test fails on a contact flipped and on a joint moved by 1e-3 rad, and passes on
+    the reference itself moved by 1e-6 rad."""
+    import numpy as np
+
+    ref = np.load(REFERENCE)
+    sol = tmp_path / "solutions"
+    sol.mkdir()
+
+    def write(change=None):
+        for i in range(sum(1 for k in ref.files if k.startswith("q_"))):
+            arrays = {k: ref[f"{k}_{i}"] for k in ("contact_mask", "contact_link", "contact_sliding",
+                                                     "env_contact_mask")}
+            arrays["q"] = ref[f"q_{i}"].astype(np.float64) + 1e-6
+            if change is not None and i == 3:
+                change(arrays)
+            np.savez(sol / f"sol_{i:03d}.npz", **arrays)
+
+    write()
+    assert compare_with_reference(tmp_path) == []
+
+    def flip(a):
+        a["contact_mask"] = a["contact_mask"].copy()
+        a["contact_mask"][5, 0] = ~a["contact_mask"][5, 0]
+    write(flip)
+    assert compare_with_reference(tmp_path) == ["sol_003.npz: contact_mask differs"]
+
+    def move(a):
+        a["q"][7, 4] += 1e-3
+    write(move)
+    got = compare_with_reference(tmp_path)
+    assert len(got) == 1 and got[0].startswith("sol_003.npz: q differs by up to 0.001")
