@@ -47,6 +47,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH",
                    help="use this MJCF (.xml) or URDF (.urdf) hand for SIDE instead of the scene's (right=..., "
                         "left=...; docs/hand_model.md)")
+    p.add_argument("--object", default=None, metavar="MESH",
+                   help="swap the scene's object for this mesh (any file trimesh reads), driven by the same object "
+                        "and wrist motion (docs/synthesis.md, 'Another object')")
+    p.add_argument("--object-scale", type=float, default=1.0, metavar="S",
+                   help="with --object: multiply the mesh's coordinates by S (its units to metres; default 1)")
+    p.add_argument("--object-mass", type=float, default=None, metavar="KG",
+                   help="with --object: its mass (default: the replaced object's)")
+    p.add_argument("--object-align", default="rest", choices=["rest", "com", "frame"],
+                   help="with --object: rest (default: centre of mass above the old one's, lowest point where the "
+                        "old one rested on the table), com (centres of mass coincide), frame (the mesh's own frame "
+                        "is the old object's)")
+    p.add_argument("--object-up", default="z", choices=["z", "y", "x", "-z", "-y", "-x"],
+                   help="with --object: the mesh axis that points up (default z; y for y-up files such as the "
+                        "Stanford bunny)")
     p.add_argument("--slide-speed", type=float, default=None, metavar="M_PER_S",
                    help="a contact held over two frames whose hand point moves faster than this on the object "
                         "slides (force on its friction cone's boundary); default: from the capture's own noise "
@@ -127,6 +141,27 @@ def _check_args(args) -> None:
         raise InputValueError(f"--smooth: expected seconds >= 0, got {args.smooth}")
 
 
+def _swap(scene, args):
+    """The scene with --object swapped in (or as it is); the swap's record for stats.json or None."""
+    from ..scene.swap import swap_object
+
+    if args.object is None:
+        given = [n for n, v, d in (("--object-scale", args.object_scale, 1.0), ("--object-mass", args.object_mass,
+                                   None), ("--object-align", args.object_align, "rest"),
+                                   ("--object-up", args.object_up, "z")) if v != d]
+        if given:
+            raise InputValueError(f"{given[0]}: needs --object MESH")
+        return scene, None
+    swapped, swap = swap_object(scene, args.object, scale=args.object_scale, mass=args.object_mass,
+                                align=args.object_align, up=args.object_up)
+    print(f"{scene.name}: object '{scene.object.name}' swapped for {args.object} (scale {args.object_scale:g}, "
+          f"{swap.mass:g} kg, up {args.object_up}), placed by '{swap.align}' at frame {swap.frame}; the object and "
+          f"wrist tracks are unchanged", file=sys.stderr)
+    record = dict(swap.to_json(), mesh=str(args.object), scale=args.object_scale, up=args.object_up,
+                  replaced=scene.object.name)
+    return swapped, record
+
+
 def _prepare(scene, args):
     """The scene's capture preparation (torchhand.fill.prepare): slide speed, steadied wrists and object."""
     from ..fill.object_rest import ObjectRest
@@ -152,6 +187,7 @@ def run(args) -> int:
     try:
         scene = load_scene(args.scene)
         scene = with_hands(scene, args.hand)
+        scene, swap = _swap(scene, args)
         scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
         if args.frames:
             scene = scene.with_frames(*_frames(args.frames, scene.T))
@@ -204,6 +240,8 @@ def run(args) -> int:
         writer.start(result.problem, result.scene)
     stats = stats_dict(result, threads=threads)
     stats["capture"] = prepared.to_json()
+    if swap is not None:
+        stats["object_swap"] = swap
     reference = result_reference(result, writer.stage)
     if reference is not None:
         stats["reference"] = reference
@@ -228,6 +266,11 @@ def run(args) -> int:
               f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, a larger --slide-speed "
               f"or --wrist-tolerance for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
               f"(torchhand inspect {args.scene}).", file=sys.stderr)
+        from ..synthesis.clearance import describe_palm
+        palm = describe_palm(result.problem)
+        if palm:
+            print(f"{palm}: no finger motion can avoid that (a smaller --object-scale, or another object placement).",
+                  file=sys.stderr)
         worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
         causes = ("kinematic", "finger-finger", "dynamic")
         where = ", ".join(f"frame {t}: {sum(st.rejections_by_frame[t])} ("
