@@ -131,3 +131,13 @@ def test_cli_synthesizes_with_a_swapped_object(tmp_path):
     box = load_scene("box-turn").with_frames(0, 8)
     assert torch.allclose(written.object_pose, box.object_pose, atol=1e-12)
     assert np.ptp(np.asarray(written.object.mesh.vertices)[:, 2]) == pytest.approx(0.7 * 0.08, abs=1e-6)
+
+
+def test_cli_names_a_palm_inside_the_swapped_object(tmp_path):
+    mesh = tmp_path / "tall.stl"
+    trimesh.creation.box((0.09, 0.07, 0.12)).export(mesh)
+    run = _torchhand(["synthesize", "box-turn", "--object", str(mesh), "--frames", "0:12", "--solutions", "1",
+                      "--max-nodes", "300", "--out", str(tmp_path / "out"), "--no-progress"])
+    assert run.returncode == 1, run.stderr[-2000:]
+    assert "no feasible motion found within 300 node tests" in run.stderr
+    assert "the right palm goes up to " in run.stderr and "no finger motion can avoid that" in run.stderr

@@ -260,24 +260,7 @@ def run(args) -> int:
           f"not written: {ex.failed_check} failed the final check, {ex.unsmoothed} could not be smoothed, "
           f"{ex.duplicate} duplicate(s)" + (f"; {unsmoothed} written unsmoothed" if unsmoothed else ""))
     if n == 0:
-        budget = f"{max_nodes} node tests" if st.stopped_by == "max_nodes" else f"{args.time_budget:g} s" \
-            if st.stopped_by == "time_budget" else "the budget"
-        print(f"no feasible motion found within {budget}: the furthest any path got was frame "
-              f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, a larger --slide-speed "
-              f"or --wrist-tolerance for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
-              f"(torchhand inspect {args.scene}).", file=sys.stderr)
-        from ..synthesis.clearance import describe_palm
-        palm = describe_palm(result.problem)
-        if palm:
-            print(f"{palm}: no finger motion can avoid that (a smaller --object-scale, or another object placement).",
-                  file=sys.stderr)
-        worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
-        causes = ("kinematic", "finger-finger", "dynamic")
-        where = ", ".join(f"frame {t}: {sum(st.rejections_by_frame[t])} ("
-                          f"{causes[max(range(3), key=lambda c: st.rejections_by_frame[t][c])]} most)"
-                          for t in worst if sum(st.rejections_by_frame[t]))
-        if where:
-            print(f"most rejections at {where} (stats.json: rejections_by_frame).", file=sys.stderr)
+        _explain_failure(result, args, scene, max_nodes)
     print(f"wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {n} solution(s) in {out}/solutions/")
     return 0 if n else 1
 
@@ -296,3 +279,27 @@ def _say_reference(name: str, reference: dict) -> None:
                   f"contact sets agree on {100 * min(agree):.0f}-{100 * max(agree):.0f} % of frames "
                   f"(stats.json reference, fingers_{side}_sol_*.png; the captured fingers: "
                   f"{entry['captured_fit']['file']})", file=sys.stderr)
+
+
+def _explain_failure(result, args, scene, max_nodes) -> None:
+    """Why no solution was written: the budget, how far the search got, a palm inside the object, the frames with
+    the most rejections."""
+    st = result.stats
+    budget = f"{max_nodes} node tests" if st.stopped_by == "max_nodes" else f"{args.time_budget:g} s" \
+        if st.stopped_by == "time_budget" else "the budget"
+    print(f"no feasible motion found within {budget}: the furthest any path got was frame "
+          f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, a larger --slide-speed "
+          f"or --wrist-tolerance for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
+          f"(torchhand inspect {args.scene}).", file=sys.stderr)
+    from ..synthesis.clearance import describe_palm
+    palm = describe_palm(result.problem)
+    if palm:
+        print(f"{palm}: no finger motion can avoid that (a smaller --object-scale, or another object placement).",
+              file=sys.stderr)
+    worst = sorted(range(scene.T), key=lambda t: -sum(st.rejections_by_frame[t]))[:3]
+    causes = ("kinematic", "finger-finger", "dynamic")
+    where = ", ".join(f"frame {t}: {sum(st.rejections_by_frame[t])} ("
+                      f"{causes[max(range(3), key=lambda c: st.rejections_by_frame[t][c])]} most)"
+                      for t in worst if sum(st.rejections_by_frame[t]))
+    if where:
+        print(f"most rejections at {where} (stats.json: rejections_by_frame).", file=sys.stderr)
