@@ -141,3 +141,32 @@ def test_cli_names_a_palm_inside_the_swapped_object(tmp_path):
     assert run.returncode == 1, run.stderr[-2000:]
     assert "no feasible motion found within 300 node tests" in run.stderr
     assert "the right palm goes up to " in run.stderr and "no finger motion can avoid that" in run.stderr
+
+
+def test_an_offset_in_the_wrist_frame_moves_the_object_relative_to_the_wrist():
+    from torchhand.hand.collision import rigid_inverse
+    from torchhand.scene.swap import offset_object
+
+    box = load_scene("box-turn")
+    o = torch.tensor([0.0, 0.0, 0.02], dtype=torch.float64)
+    moved = offset_object(box, o.tolist())
+    W = box.hands[0].wrist_pose.double()
+    rel_old = rigid_inverse(W) @ box.object_pose.double()
+    rel_new = rigid_inverse(W) @ moved.object_pose.double()
+    assert torch.allclose(rel_new[:, :3, 3] - rel_old[:, :3, 3], o.expand(box.T, 3), atol=1e-12)
+    assert torch.allclose(rel_new[:, :3, :3], rel_old[:, :3, :3], atol=1e-12)
+    assert torch.equal(moved.hands[0].wrist_pose, box.hands[0].wrist_pose)
+
+
+def test_an_offset_into_the_table_is_refused():
+    from torchhand.scene.swap import offset_object
+
+    box = load_scene("box-turn")
+    down = (box.hands[0].wrist_pose[0, :3, :3].double().T @ torch.tensor([0.0, 0.0, -0.01], dtype=torch.float64))
+    with pytest.raises(InputValueError, match=r"^offset: the object would go 10\.0 mm into the table at"):
+        offset_object(box, down.tolist())
+    with pytest.raises(InputValueError, match=r"^offset: expected three finite numbers"):
+        offset_object(box, [0.0, 1.0])
+    run = _torchhand(["synthesize", "box-turn", "--out", "/tmp/never-written", "--object-offset", "0,0"])
+    assert run.returncode == 2 and run.stderr.strip() == ("torchhand: error: --object-offset: expected X,Y,Z in "
+                                                          "metres, got '0,0'")

@@ -61,6 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object-up", default="z", choices=["z", "y", "x", "-z", "-y", "-x"],
                    help="with --object: the mesh axis that points up (default z; y for y-up files such as the "
                         "Stanford bunny)")
+    p.add_argument("--object-offset", default=None, metavar="X,Y,Z",
+                   help="move the object by this offset in the (first) wrist's frame, metres, frame by frame: "
+                        "toward the palm for an envelope grasp, away for a fingertip grip (docs/synthesis.md)")
     p.add_argument("--slide-speed", type=float, default=None, metavar="M_PER_S",
                    help="a contact held over two frames whose hand point moves faster than this on the object "
                         "slides (force on its friction cone's boundary); default: from the capture's own noise "
@@ -162,6 +165,26 @@ def _swap(scene, args):
     return swapped, record
 
 
+def _offset(scene, text: str | None):
+    """The scene with --object-offset X,Y,Z applied (or as it is), and the offset for stats.json or None."""
+    from ..scene.swap import offset_object
+
+    if text is None:
+        return scene, None
+    try:
+        o = [float(v) for v in text.split(",")]
+    except ValueError:
+        o = []
+    if len(o) != 3:
+        raise InputValueError(f"--object-offset: expected X,Y,Z in metres, got {text!r}")
+    try:
+        moved = offset_object(scene, o)
+    except InputValueError as err:
+        raise InputValueError(f"--object-offset {text}: {str(err).removeprefix('offset: ')}") from None
+    print(f"{scene.name}: object moved by {text} m in the {scene.hands[0].side} wrist's frame", file=sys.stderr)
+    return moved, {"offset_m": o, "frame": f"{scene.hands[0].side} wrist"}
+
+
 def _prepare(scene, args):
     """The scene's capture preparation (torchhand.fill.prepare): slide speed, steadied wrists and object."""
     from ..fill.object_rest import ObjectRest
@@ -188,6 +211,7 @@ def run(args) -> int:
         scene = load_scene(args.scene)
         scene = with_hands(scene, args.hand)
         scene, swap = _swap(scene, args)
+        scene, offset = _offset(scene, args.object_offset)
         scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
         if args.frames:
             scene = scene.with_frames(*_frames(args.frames, scene.T))
@@ -242,6 +266,8 @@ def run(args) -> int:
     stats["capture"] = prepared.to_json()
     if swap is not None:
         stats["object_swap"] = swap
+    if offset is not None:
+        stats["object_offset"] = offset
     reference = result_reference(result, writer.stage)
     if reference is not None:
         stats["reference"] = reference

@@ -28,10 +28,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from ..errors import InputTypeError, InputValueError
 
-__all__ = ["ALIGNS", "UP_AXES", "Swap", "swap_object"]
+__all__ = ["ALIGNS", "UP_AXES", "Swap", "swap_object", "offset_object"]
 
 ALIGNS = ("rest", "com", "frame")
 UP_AXES = ("z", "y", "x", "-z", "-y", "-x")
@@ -145,3 +146,35 @@ def _moved(mesh, Q: np.ndarray, delta: np.ndarray):
     out.apply_transform(A)
     return out
 
+
+
+def offset_object(scene, offset, *, side: str | None = None):
+    """The scene with its object moved by ``offset`` (3,) metres in the wrist frame of hand ``side`` (default the
+    first hand), frame by frame: ``object_pose'(t) = W(t) T(offset) W(t)^-1 object_pose(t)``, so the object sits
+    at the same place relative to that wrist, ``offset`` away from where it was (Ye & Liu Fig. 7: toward the palm
+    for an envelope grasp, away for a fingertip grip). The wrist tracks and the captured object track stay as they
+    were.
+
+    Raises:
+        InputValueError: a bad ``offset`` or ``side``, or an object moved more than 1 mm into the table.
+    """
+    o = np.asarray(offset, dtype=np.float64)
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise InputValueError(f"offset: expected three finite numbers (metres), got {offset!r}")
+    sides = [t.side for t in scene.hands]
+    if side is not None and side not in sides:
+        raise InputValueError(f"side: scene '{scene.name}' has no {side} hand (hands: {', '.join(sides)})")
+    track = scene.hands[sides.index(side) if side is not None else 0]
+    W = track.wrist_pose.detach().cpu().double()
+    shift = W[:, :3, :3] @ torch.as_tensor(o)                                  # (T, 3) world
+    pose = scene.object_pose.detach().cpu().double().clone()
+    pose[:, :3, 3] += shift
+    if scene.environment.table:
+        v = torch.as_tensor(np.asarray(scene.object.mesh.convex_hull.vertices))
+        low = ((pose[:, None, :3, :3] @ v[None, :, :, None]).squeeze(-1) + pose[:, None, :3, 3])[..., 2].amin(-1)
+        under = (low < scene.environment.table_height - 1e-3).nonzero().squeeze(-1).tolist()
+        if under:
+            depth = 1e3 * float(scene.environment.table_height - low.min())
+            raise InputValueError(f"offset: the object would go {depth:.1f} mm into the table at {len(under)} "
+                                  f"frame(s) ({under[0]}-{under[-1]})")
+    return dataclasses.replace(scene, object_pose=pose.to(scene.object_pose))
