@@ -170,3 +170,14 @@ def test_an_offset_into_the_table_is_refused():
     run = _torchhand(["synthesize", "box-turn", "--out", "/tmp/never-written", "--object-offset", "0,0"])
     assert run.returncode == 2 and run.stderr.strip() == ("torchhand: error: --object-offset: expected X,Y,Z in "
                                                           "metres, got '0,0'")
+
+
+def test_a_yaw_turns_the_mesh_about_the_vertical():
+    box = load_scene("box-turn")
+    long_x = RigidObject.from_trimesh(trimesh.creation.box((0.08, 0.02, 0.03)), mass=0.1)
+    a, _ = swap_object(box, long_x)
+    b, _ = swap_object(box, long_x, yaw=90.0)
+    ext = lambda s: np.ptp(_world(s, 0, np.asarray(s.object.mesh.vertices)), axis=0)   # noqa: E731
+    assert np.allclose(ext(a)[[1, 0, 2]], ext(b), atol=1e-9)          # x and y extents exchanged, height kept
+    with pytest.raises(InputValueError, match="^yaw: expected a finite number of degrees"):
+        swap_object(box, long_x, yaw=float("nan"))

@@ -61,6 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object-up", default="z", choices=["z", "y", "x", "-z", "-y", "-x"],
                    help="with --object: the mesh axis that points up (default z; y for y-up files such as the "
                         "Stanford bunny)")
+    p.add_argument("--object-yaw", type=float, default=0.0, metavar="DEG",
+                   help="with --object: turn the mesh by DEG degrees about the vertical (default 0)")
     p.add_argument("--object-offset", default=None, metavar="X,Y,Z",
                    help="move the object by this offset in the (first) wrist's frame, metres, frame by frame: "
                         "toward the palm for an envelope grasp, away for a fingertip grip (docs/synthesis.md)")
@@ -151,17 +153,18 @@ def _swap(scene, args):
     if args.object is None:
         given = [n for n, v, d in (("--object-scale", args.object_scale, 1.0), ("--object-mass", args.object_mass,
                                    None), ("--object-align", args.object_align, "rest"),
-                                   ("--object-up", args.object_up, "z")) if v != d]
+                                   ("--object-up", args.object_up, "z"), ("--object-yaw", args.object_yaw, 0.0))
+                 if v != d]
         if given:
             raise InputValueError(f"{given[0]}: needs --object MESH")
         return scene, None
     swapped, swap = swap_object(scene, args.object, scale=args.object_scale, mass=args.object_mass,
-                                align=args.object_align, up=args.object_up)
+                                align=args.object_align, up=args.object_up, yaw=args.object_yaw)
     print(f"{scene.name}: object '{scene.object.name}' swapped for {args.object} (scale {args.object_scale:g}, "
-          f"{swap.mass:g} kg, up {args.object_up}), placed by '{swap.align}' at frame {swap.frame}; the object and "
+          f"{swap.mass:g} kg, up {args.object_up}, yaw {args.object_yaw:g}°), placed by '{swap.align}' at frame {swap.frame}; the object and "
           f"wrist tracks are unchanged", file=sys.stderr)
     record = dict(swap.to_json(), mesh=str(args.object), scale=args.object_scale, up=args.object_up,
-                  replaced=scene.object.name)
+                  yaw=args.object_yaw, replaced=scene.object.name)
     return swapped, record
 
 

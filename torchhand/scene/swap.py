@@ -14,6 +14,8 @@ Placement (``align``):
 * ``"com"``: the centres of mass coincide.
 * ``"frame"``: the mesh's own frame is the old object's frame (no move).
 
+``yaw``: degrees the mesh then turns about the world's vertical (its handle or face another way).
+
 ``up``: the mesh axis that points up (``"z"``, ``"y"``, ``"x"`` or negated, ``"-y"``): many meshes are y-up (the
 Stanford bunny, the bigym mug's OBJ). The mesh is turned so that this axis points along world +z at the reference
 frame (the rest frame, or frame 0), before it is placed.
@@ -79,7 +81,7 @@ def _rest_frame(scene) -> int | None:
 
 
 def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, align: str = "rest",
-                up: str = "z", name: str | None = None) -> tuple:
+                up: str = "z", yaw: float = 0.0, name: str | None = None) -> tuple:
     """The scene with its object replaced (module docstring). Returns ``(scene, Swap)``.
 
     Args:
@@ -88,7 +90,8 @@ def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, a
             :class:`~torchhand.geometry.objects.RigidObject`
         scale: multiplies the mesh's coordinates (a file's units to metres)
         mass: kg; default the old object's mass
-        align: ``"rest"``, ``"com"`` or ``"frame"``; up: the mesh's up axis (:data:`UP_AXES`)
+        align: ``"rest"``, ``"com"`` or ``"frame"``; up: the mesh's up axis (:data:`UP_AXES`); yaw: degrees
+            the mesh turns about the world's vertical at the reference frame, after ``up``
         name: the new object's name (default the file's stem or the object's name)
 
     Raises:
@@ -121,7 +124,11 @@ def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, a
     ref = 0 if frame is None else frame
     pose = scene.object_pose[ref].detach().cpu().double().numpy()
     R, t = pose[:3, :3], pose[:3, 3]
-    Q = R.T @ _up_rotation(up)                  # mesh axes -> object frame, the up axis along world +z at ref
+    if not np.isfinite(yaw):
+        raise InputValueError(f"yaw: expected a finite number of degrees, got {yaw!r}")
+    c, s_ = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+    Rz = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+    Q = R.T @ Rz @ _up_rotation(up)             # mesh axes -> object frame, the up axis along world +z at ref
     probe = RigidObject.from_trimesh(_moved(tm, Q, np.zeros(3)), mass=kg, name=label)
     old_com = np.asarray(scene.object.com, dtype=np.float64)
     if used == "frame":
