@@ -181,3 +181,12 @@ def test_a_yaw_turns_the_mesh_about_the_vertical():
     assert np.allclose(ext(a)[[1, 0, 2]], ext(b), atol=1e-9)          # x and y extents exchanged, height kept
     with pytest.raises(InputValueError, match="^yaw: expected a finite number of degrees"):
         swap_object(box, long_x, yaw=float("nan"))
+
+
+def test_the_palm_is_the_palm_link_and_the_metacarpals():
+    from torchhand.hand import default_hand
+    from torchhand.synthesis.clearance import palm_links
+
+    hand = default_hand()
+    names = [hand.link_names[i] for i in palm_links(hand).tolist()]
+    assert names == ["palm", "index_metacarpal", "middle_metacarpal", "ring_metacarpal", "little_metacarpal"]

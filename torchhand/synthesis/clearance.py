@@ -2,8 +2,9 @@
 the object (a swapped-in object too large, an object moved toward the palm) leaves the search nothing to find,
 whatever the fingers do.
 
-The palm is every link that belongs to no finger (``HandModel.link_finger < 0``); its capsule axis is sampled at
-most ``spacing`` apart, and its clearance is the smallest signed distance of those points to the object (the
+The palm is every link that belongs to no finger (``HandModel.link_finger < 0``) and the first link of every
+four-link finger (its metacarpal, inside the palm: the palm's surface between wrist and knuckles), posed at the rest
+pose; each capsule axis is sampled at most ``spacing`` apart, and its clearance is the smallest signed distance of those points to the object (the
 problem's SDF) less the capsule's radius: negative where the palm is inside.
 """
 
@@ -13,14 +14,21 @@ import torch
 
 from .problem import SynthesisProblem
 
-__all__ = ["palm_clearance", "describe_palm"]
+__all__ = ["palm_links", "palm_clearance", "describe_palm"]
+
+
+def palm_links(hand) -> torch.Tensor:
+    """The palm's links (module docstring), (P,) long."""
+    fl = hand.finger_links
+    meta = fl[(fl >= 0).all(-1), 0]
+    return torch.cat([(hand.link_finger < 0).nonzero().squeeze(-1), meta]).unique()
 
 
 def palm_clearance(problem: SynthesisProblem, spacing: float = 0.002) -> torch.Tensor:
     """Palm clearance per hand and frame, (H, T), metres (module docstring)."""
     out = []
     for h, hand in enumerate(problem.hands):
-        links = (hand.link_finger < 0).nonzero().squeeze(-1)
+        links = palm_links(hand)
         links = links[hand.capsule_radius[links] > 0]
         if links.numel() == 0:
             out.append(torch.full((problem.T,), float("inf"), dtype=problem.dtype, device=problem.device))
