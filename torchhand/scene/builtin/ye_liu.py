@@ -287,23 +287,3 @@ _CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about th
 def cube_turn() -> Scene:
     return _turn_from_above("cube-turn", _CUBE_TURN, (0.075, 0.075, 0.075), 0.2, "cube", 60.0)
 
-
-_HANDLE_LIFT = ("A handle (a 3 cm thick, 18 cm long rod, 0.15 kg) standing on the table is grasped around its upper "
-                "part from the side by a right hand, the palm against it, lifted 10 cm, held and put back down "
-                "(Ye & Liu Fig. 7: with `--object-offset 0,0,-0.025` the handle stands 2.5 cm farther from the palm "
-                "and only the fingertips reach it).")
-
-
-@register_scene("handle-lift", _HANDLE_LIFT)
-def handle_lift() -> Scene:
-    T = 72
-    radius, height = 0.015, 0.18
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=32)
-    obj = RigidObject.from_trimesh(mesh, mass=0.15, name="handle")
-    hold = (_APPROACH, T - 1 - _APPROACH)
-    up = _ramp(T, hold[0] + 4, 32) - _ramp(T, 42, hold[1] - 2)
-    p = np.stack([0.0 * up, 0.0 * up, TABLE_HEIGHT + 0.5 * height + 0.10 * up], axis=-1)
-    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), p)
-    # palm on the rod's -y side 4 cm below its top, fingers along +x wrapping round its far side, thumb up
-    grasp = _grasp((1, 0, 0), (0, -1, 0), (0.0, -radius + 0.002, 0.5 * height - 0.04))
-    return _scene("handle-lift", _HANDLE_LIFT, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
