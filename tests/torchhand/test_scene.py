@@ -572,4 +572,3 @@ def test_builtin_name_over_a_directory_without_scene_toml(tmp_path, monkeypatch)
     assert load_scene("box-turn").name == "box-turn" and load_scene("box-turn").T == 66
     with pytest.raises(MissingFileError, match="scene.toml"):
         load_scene("./box-turn")
-

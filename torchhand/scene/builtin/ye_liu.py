@@ -286,4 +286,3 @@ _CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about th
 @register_scene("cube-turn", _CUBE_TURN)
 def cube_turn() -> Scene:
     return _turn_from_above("cube-turn", _CUBE_TURN, (0.075, 0.075, 0.075), 0.2, "cube", 60.0)
-
