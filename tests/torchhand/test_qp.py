@@ -497,7 +497,14 @@ def test_ipm_path_on_planner_window_qps_is_complementary_and_matches_clarabel():
     mv = lambda M, v: (M @ v.unsqueeze(-1)).squeeze(-1)  # noqa: E731
     slack = h - mv(G, res.z)
     assert bool((res.lam >= 0).all()) and bool((slack >= -1e-9 * (1 + h.abs().amax(1, keepdim=True))).all())
-    assert bool((res.residual_primal <= 1e-9 * (1 + b.abs().amax(1))).all())
+    # the primal residual against what CONVERGED claims: r_p <= tol (1 + size_p), size_p the largest of |G z|, |A z|,
+    # |h| and |b| (a bound of 1e-9 (1 + |b|) alone is tighter than the claim; under another CPU's arithmetic one
+    # window QP's 5.5e-9 exceeded it while within the claim)
+    tol_p = qp_tolerances(torch.float64).tol
+    size_p = torch.stack([mv(G, res.z).abs().amax(1), mv(A, res.z).abs().amax(1), h.abs().amax(1),
+                          b.abs().amax(1)]).amax(0)
+    ratio_p = res.residual_primal / (tol_p * (1 + size_p))
+    assert bool((ratio_p <= 1.0).all()), float(ratio_p.max())
     # the dual residual against what CONVERGED claims (convex_qp's docstring): r_d <= tol (1 + size), tol the float64
     # row of qp_tolerances and size the largest of |Qz|, |G^T lam + A^T nu| and |p| (a bound of 1e-9 (1 + |p|)
     # alone is tighter than the claim wherever |Qz| or the multipliers' term exceed |p|)
