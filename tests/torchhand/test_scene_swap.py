@@ -190,3 +190,10 @@ def test_the_palm_is_the_palm_link_and_the_metacarpals():
     hand = default_hand()
     names = [hand.link_names[i] for i in palm_links(hand).tolist()]
     assert names == ["palm", "index_metacarpal", "middle_metacarpal", "ring_metacarpal", "little_metacarpal"]
+
+
+def test_cli_a_bad_object_file_is_one_line(tmp_path):
+    run = _torchhand(["synthesize", "box-turn", "--object", str(tmp_path / "none.ply"), "--out", str(tmp_path / "o")])
+    assert run.returncode == 2 and run.stderr.strip() == (f"torchhand: error: --object {tmp_path / 'none.ply'}: mesh "
+                                                          f"file '{tmp_path / 'none.ply'}' does not exist")
+    assert not (tmp_path / "o").exists()

@@ -16,7 +16,7 @@ import sys
 
 import torch
 
-from ..errors import InputValueError
+from ..errors import InputValueError, TorchhandError
 from ._common import Progress, add_threads_argument, apply_threads
 
 
@@ -158,8 +158,11 @@ def _swap(scene, args):
         if given:
             raise InputValueError(f"{given[0]}: needs --object MESH")
         return scene, None
-    swapped, swap = swap_object(scene, args.object, scale=args.object_scale, mass=args.object_mass,
-                                align=args.object_align, up=args.object_up, yaw=args.object_yaw)
+    try:
+        swapped, swap = swap_object(scene, args.object, scale=args.object_scale, mass=args.object_mass,
+                                    align=args.object_align, up=args.object_up, yaw=args.object_yaw)
+    except TorchhandError as err:               # name the option, not the function's argument
+        raise type(err)(f"--object {args.object}: {str(err).removeprefix('path: ')}") from None
     print(f"{scene.name}: object '{scene.object.name}' swapped for {args.object} (scale {args.object_scale:g}, "
           f"{swap.mass:g} kg, up {args.object_up}, yaw {args.object_yaw:g}°), placed by '{swap.align}' at frame {swap.frame}; the object and "
           f"wrist tracks are unchanged", file=sys.stderr)
