@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-FINGERS = ("thumb", "index", "middle", "ring", "little")
+from torchhand.fill.reference import FINGERS
 
 
 def finger_sets(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -164,8 +164,8 @@ def _swap(scene, args):
     except TorchhandError as err:               # name the option, not the function's argument
         raise type(err)(f"--object {args.object}: {str(err).removeprefix('path: ')}") from None
     print(f"{scene.name}: object '{scene.object.name}' swapped for {args.object} (scale {args.object_scale:g}, "
-          f"{swap.mass:g} kg, up {args.object_up}, yaw {args.object_yaw:g}°), placed by '{swap.align}' at frame {swap.frame}; the object and "
-          f"wrist tracks are unchanged", file=sys.stderr)
+          f"{swap.mass:g} kg, up {args.object_up}, yaw {args.object_yaw:g}°), placed by '{swap.align}' at frame "
+          f"{swap.frame}; the object and wrist tracks are unchanged", file=sys.stderr)
     record = dict(swap.to_json(), mesh=str(args.object), scale=args.object_scale, up=args.object_up,
                   yaw=args.object_yaw, replaced=scene.object.name)
     return swapped, record
@@ -316,6 +316,8 @@ def _say_reference(name: str, reference: dict) -> None:
 def _explain_failure(result, args, scene, max_nodes) -> None:
     """Why no solution was written: the budget, how far the search got, a palm inside the object, the frames with
     the most rejections."""
+    from ..synthesis.clearance import describe_palm
+
     st = result.stats
     budget = f"{max_nodes} node tests" if st.stopped_by == "max_nodes" else f"{args.time_budget:g} s" \
         if st.stopped_by == "time_budget" else "the budget"
@@ -323,7 +325,6 @@ def _explain_failure(result, args, scene, max_nodes) -> None:
           f"{st.deepest_frame} of {scene.T}. Try a larger --max-nodes, another --seed, a larger --slide-speed "
           f"or --wrist-tolerance for motion capture (docs/synthesis.md), or check that the wrists can reach the object "
           f"(torchhand inspect {args.scene}).", file=sys.stderr)
-    from ..synthesis.clearance import describe_palm
     palm = describe_palm(result.problem)
     if palm:
         print(f"{palm}: no finger motion can avoid that (a smaller --object-scale, or another object placement).",

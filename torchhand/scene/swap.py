@@ -108,6 +108,8 @@ def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, a
         raise InputValueError(f"scale: expected a finite positive number, got {scale!r}")
     if mass is not None and not (np.isfinite(mass) and mass > 0):
         raise InputValueError(f"mass: expected a finite positive number of kilograms, got {mass!r}")
+    if not np.isfinite(yaw):
+        raise InputValueError(f"yaw: expected a finite number of degrees, got {yaw!r}")
     if isinstance(mesh, RigidObject):
         tm = mesh.mesh.copy()
         if scale != 1.0:
@@ -124,8 +126,6 @@ def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, a
     ref = 0 if frame is None else frame
     pose = scene.object_pose[ref].detach().cpu().double().numpy()
     R, t = pose[:3, :3], pose[:3, 3]
-    if not np.isfinite(yaw):
-        raise InputValueError(f"yaw: expected a finite number of degrees, got {yaw!r}")
     c, s_ = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
     Rz = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
     Q = R.T @ Rz @ _up_rotation(up)             # mesh axes -> object frame, the up axis along world +z at ref
@@ -140,19 +140,21 @@ def swap_object(scene, mesh, *, scale: float = 1.0, mass: float | None = None, a
             new_low = float(((np.asarray(probe.mesh.vertices) + delta) @ R.T + t)[:, 2].min())
             delta = delta + (old_low - new_low) * R.T[:, 2]
     obj = RigidObject.from_trimesh(_moved(tm, Q, delta), mass=kg, name=label)
+    swapped = dataclasses.replace(scene, object=obj, name=f"{scene.name}-{label}")
+    return swapped, Swap(align=used, frame=ref, transform=_affine(Q, delta), mass=kg)
+
+
+def _affine(Q: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """The (4, 4) transform x -> Q x + delta."""
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = Q, delta
-    swapped = dataclasses.replace(scene, object=obj, name=f"{scene.name}-{label}")
-    return swapped, Swap(align=used, frame=ref, transform=A, mass=kg)
+    return A
 
 
 def _moved(mesh, Q: np.ndarray, delta: np.ndarray):
     out = mesh.copy()
-    A = np.eye(4)
-    A[:3, :3], A[:3, 3] = Q, delta
-    out.apply_transform(A)
+    out.apply_transform(_affine(Q, delta))
     return out
-
 
 
 def offset_object(scene, offset, *, side: str | None = None):

@@ -4,8 +4,8 @@ whatever the fingers do.
 
 The palm is every link that belongs to no finger (``HandModel.link_finger < 0``) and the first link of every
 four-link finger (its metacarpal, inside the palm: the palm's surface between wrist and knuckles), posed at the rest
-pose; each capsule axis is sampled at most ``spacing`` apart, and its clearance is the smallest signed distance of those points to the object (the
-problem's SDF) less the capsule's radius: negative where the palm is inside.
+pose; each capsule axis is sampled at most ``spacing`` apart, and its clearance is the smallest signed distance of
+those points to the object (the problem's SDF) less the capsule's radius: negative where the palm is inside.
 """
 
 from __future__ import annotations
