@@ -20,7 +20,7 @@ from torchhand.scene import (Environment, HandTrack, Scene, environment_contacts
 from torchhand.scene.builtin import builtin_scene, builtin_scene_description, list_builtin_scenes
 from torchhand.scene.builtin.ye_liu import PALM_CENTRE, make_mug_mesh
 
-REQUIRED = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box")
+REQUIRED = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "handle-lift", "handle-lift-palm")
 
 
 @pytest.fixture(scope="module")

@@ -197,3 +197,20 @@ def test_cli_a_bad_object_file_is_one_line(tmp_path):
     assert run.returncode == 2 and run.stderr.strip() == (f"torchhand: error: --object {tmp_path / 'none.ply'}: mesh "
                                                           f"file '{tmp_path / 'none.ply'}' does not exist")
     assert not (tmp_path / "o").exists()
+
+
+def test_the_handle_pair_differs_only_in_the_handle_s_distance_to_the_palm():
+    """handle-lift and handle-lift-palm (Ye & Liu Fig. 7): the same wrist track, the handle 1.5 cm nearer the palm
+    in the wrist frame, the palm 15.5 mm clear of it in the first and 0.5 mm in the second."""
+    from torchhand.hand.collision import rigid_inverse
+    from torchhand.scene.builtin.ye_liu import HANDLE_PALM_OFFSET
+    from torchhand.synthesis.clearance import palm_clearance
+    from torchhand.synthesis.problem import build_problem
+
+    far, near = load_scene("handle-lift"), load_scene("handle-lift-palm")
+    assert torch.equal(far.hands[0].wrist_pose, near.hands[0].wrist_pose)
+    W = far.hands[0].wrist_pose.double()
+    shift = (rigid_inverse(W) @ near.object_pose.double() - rigid_inverse(W) @ far.object_pose.double())[:, :3, 3]
+    assert torch.allclose(shift, torch.tensor(HANDLE_PALM_OFFSET, dtype=torch.float64).expand(far.T, 3), atol=1e-12)
+    gaps = [float(palm_clearance(build_problem(s, torch.Generator().manual_seed(0))).min()) for s in (far, near)]
+    assert abs(gaps[0] - 0.0155) < 5e-4 and 0.0 < gaps[1] < 0.0012      # near: within contact distance

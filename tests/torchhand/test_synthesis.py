@@ -166,6 +166,27 @@ def test_same_seed_same_solutions(box_turn_problem):
         assert torch.equal(sa.guiding, sb.guiding)
 
 
+def test_a_path_completed_as_the_budget_runs_out_is_kept(box_turn_problem):
+    """A search whose node budget is spent in the very round that completes a path still returns that path."""
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.search import SearchSettings, search
+
+    scene = box_turn_problem[0].with_frames(0, 16)
+
+    def run(max_nodes):
+        gen = torch.Generator().manual_seed(3)
+        p = build_problem(scene, gen)
+        return search(p, prune_patches(p, gen), SearchSettings(trees=1, candidates=6, solutions=1,
+                                                               max_nodes=max_nodes, epsilon=3), seed=3)
+
+    free, free_stats = run(20000)
+    assert len(free) == 1 and free_stats.stopped_by == "solutions"
+    tight, tight_stats = run(free_stats.nodes_tested)      # spent by the round that completes the path
+    assert tight_stats.stopped_by == "max_nodes" and tight_stats.nodes_tested == free_stats.nodes_tested
+    assert len(tight) == 1
+    torch.testing.assert_close(tight[0].q, free[0].q)
+
+
 # --- bad input ---------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("argv,needle", [

@@ -64,6 +64,11 @@ class NodeTestSettings:
     #                                the capture's noise, for hand and table contacts alike (torchhand.fill)
     cone_iters: int | None = 300   # iteration limit of the friction-cone solver (None: its default); a search
     #                                can drop the rare hard problem, the final check gives it more
+    cone_retry_iters: int | None = 3000   # a force solve left undecided at cone_iters (neither converged, nor
+    #                                certified infeasible, nor within balance_tol) is resumed from its forces up to
+    #                                this many iterations of plain ADMM before its verdict counts (None: no second
+    #                                try); a thin open-hand contact set can need ~2000 (a rod's frame 6: residual
+    #                                2.9e-3 at 300, 2.5e-5 at 2000; tests/torchhand/test_node_verdicts.py)
     cone_polish: bool = True       # Newton polishing inside the friction-cone solver ...
     cone_polish_from: int | None = 250   # ... from this iteration on (of cone_iters = 300): plain ADMM settles
     #                                most search problems at cone_tol, Newton steps go to the slow ones only

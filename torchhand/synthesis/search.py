@@ -372,6 +372,10 @@ class _Search:
             self.stats.time_s = time.perf_counter() - start
             if progress is not None:
                 progress(self)
+        for tree in self.trees:          # a path completed in the round that spent the budget still counts
+            if tree.stack and tree.stack[-1].t1 >= self.T and len(self.solutions) < s.solutions:
+                self._record_path(tree)
+                tree.stack.pop()
         self.stats.time_s = time.perf_counter() - start
         self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
         return [sol for sol in self.accepted]
@@ -384,18 +388,7 @@ class _Search:
                 self._restart(tree)
             node = tree.stack[-1]
             if node.t1 >= self.T:                      # a full path: record it (unless seen), then backtrack
-                path = list(tree.stack[1:])
-                q = torch.cat([n.frames["q"] for n in path])
-                if len(self.solutions) < self.s.solutions and \
-                        not any(torch.allclose(q, other, atol=1e-4) for other in self.solution_q):
-                    self.solution_q.append(q)
-                    sol = self._solution(tree.index, path)
-                    self.stats.paths_found += 1
-                    if self.accept is None or self.accept(sol):
-                        self.solutions.append((tree.index, path))
-                        self.accepted.append(sol)
-                        self.solution_nodes.update(path)
-                        tree.found += 1
+                self._record_path(tree)
                 tree.stack.pop()
                 continue
             if node.children >= node.target or node.expansions >= self.s.max_expansions:
@@ -409,6 +402,22 @@ class _Search:
                 self._push(tree, node, node.pending.pop(best))
                 return None
             return node
+
+    def _record_path(self, tree: _Tree) -> None:
+        """Record the full path on top of ``tree``'s stack as a solution, unless one as near was seen or enough
+        were accepted (``accept`` decides whether it counts)."""
+        path = list(tree.stack[1:])
+        q = torch.cat([n.frames["q"] for n in path])
+        if len(self.solutions) < self.s.solutions and \
+                not any(torch.allclose(q, other, atol=1e-4) for other in self.solution_q):
+            self.solution_q.append(q)
+            sol = self._solution(tree.index, path)
+            self.stats.paths_found += 1
+            if self.accept is None or self.accept(sol):
+                self.solutions.append((tree.index, path))
+                self.accepted.append(sol)
+                self.solution_nodes.update(path)
+                tree.found += 1
 
     def _push(self, tree: _Tree, node: _Node, feasible):
         frames, guides = feasible

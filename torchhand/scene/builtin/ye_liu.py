@@ -17,6 +17,7 @@ Profiles are minimum-jerk (``10 s^3 - 15 s^4 + 6 s^5``), so velocities start and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -26,6 +27,7 @@ import trimesh
 from ...geometry.objects import RigidObject
 from .._model import Scene
 from .._parts import Environment, HandTrack
+from ..swap import offset_object
 from ._registry import register_scene
 
 __all__ = ["TABLE_HEIGHT", "FPS", "PALM_CENTRE", "make_mug_mesh"]
@@ -123,6 +125,12 @@ def _resting_box(extents) -> tuple[trimesh.Trimesh, float]:
     return trimesh.creation.box(extents=ext), TABLE_HEIGHT + 0.5 * ext[2]
 
 
+def _standing_cylinder(radius: float, height: float, mass: float, name: str) -> tuple[RigidObject, float]:
+    """A cylinder (32 sections) about its object-frame z axis and the z of its centre when it stands on the table."""
+    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=32)
+    return RigidObject.from_trimesh(mesh, mass=mass, name=name), TABLE_HEIGHT + 0.5 * height
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # scenes
 
@@ -173,10 +181,8 @@ _BOTTLE_TURN = ("A small bottle (cylinder, radius 2.5 cm, height 10 cm, 0.2 kg) 
 @register_scene("bottle-turn", _BOTTLE_TURN)
 def bottle_turn() -> Scene:
     T = 66
-    radius, height = 0.025, 0.10
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=32)
-    obj = RigidObject.from_trimesh(mesh, mass=0.2, name="bottle")
-    z0 = TABLE_HEIGHT + 0.5 * height
+    height = 0.10
+    obj, z0 = _standing_cylinder(0.025, height, 0.2, "bottle")
     hold = (_APPROACH, T - 1 - _APPROACH)
     theta = math.radians(80.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
     pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
@@ -286,3 +292,35 @@ _CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about th
 @register_scene("cube-turn", _CUBE_TURN)
 def cube_turn() -> Scene:
     return _turn_from_above("cube-turn", _CUBE_TURN, (0.075, 0.075, 0.075), 0.2, "cube", 60.0)
+
+
+
+_HANDLE_LIFT = ("A spatula-like handle (rod, radius 1.2 cm, height 18 cm, 0.12 kg) standing on the table is gripped "
+                "from the side by a right hand, lifted 10 cm, held and put back down; the palm stays 1.5 cm clear of "
+                "it, so the fingers grip it against the thumb (Ye & Liu Fig. 7, far).")
+_HANDLE_PALM = ("handle-lift's motion with the handle 1.5 cm closer to the palm (the same wrist track, the palm 0.5 mm "
+                "clear): the fingers curl around it and the palm pushes (Ye & Liu Fig. 7, near).")
+HANDLE_PALM_OFFSET = (0.0, 0.0, 0.015)
+"""How far handle-lift-palm moves the handle in the wrist frame (+z: toward the palm), metres."""
+
+
+@register_scene("handle-lift", _HANDLE_LIFT)
+def handle_lift() -> Scene:
+    T = 72
+    radius, height = 0.012, 0.18
+    obj, z0 = _standing_cylinder(radius, height, 0.12, "handle")
+    hold = (_APPROACH, T - 1 - _APPROACH)
+    up = _ramp(T, hold[0] + 4, 32) - _ramp(T, 42, hold[1] - 2)
+    p = np.stack([0.0 * up, 0.0 * up, z0 + 0.10 * up], axis=-1)
+    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), p)
+    # palm toward +y, its centre 1.2 cm from the handle's -y side and 3 cm short of its axis (the handle stands in
+    # front of the knuckles), 4 cm below its top; fingers along +x, thumb up
+    grasp = _grasp((1, 0, 0), (0, -1, 0), (-0.03, -2 * radius, 0.5 * height - 0.04))
+    return _scene("handle-lift", _HANDLE_LIFT, obj, pose, [("right", _wrist_track(pose, grasp, hold))])
+
+
+@register_scene("handle-lift-palm", _HANDLE_PALM)
+def handle_lift_palm() -> Scene:
+    return dataclasses.replace(offset_object(handle_lift(), HANDLE_PALM_OFFSET), name="handle-lift-palm",
+                               description=_HANDLE_PALM)
+
