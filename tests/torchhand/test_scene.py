@@ -21,13 +21,14 @@ from torchhand.scene.builtin import builtin_scene, builtin_scene_description, li
 from torchhand.scene.builtin.ye_liu import PALM_CENTRE, make_mug_mesh
 
 REQUIRED = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "handle-lift", "handle-lift-palm")
+TAKING_TURNS = ("box-alternate",)   # one hand at a time holds the object (test_box_alternate_hands_take_turns)
 
 
 @pytest.fixture(scope="module")
 def scenes():
     """The scenes these tests look at (the liu-* scenes have tests of their own; liu-shadow-lift needs the shared
     reference data)."""
-    return {n: builtin_scene(n) for n in REQUIRED}
+    return {n: builtin_scene(n) for n in REQUIRED + TAKING_TURNS}
 
 
 def world_vertices(scene: Scene) -> torch.Tensor:
@@ -57,12 +58,12 @@ def test_builtin_names():
         builtin_scene("no-such-scene")
 
 
-@pytest.mark.parametrize("name", REQUIRED)
+@pytest.mark.parametrize("name", REQUIRED + TAKING_TURNS)
 def test_builtin_scene_is_valid(scenes, name):
     s = scenes[name]
     s.validate()
     assert s.name == name and s.description
-    assert 45 <= s.T <= 90 and s.fps == 30.0
+    assert 45 <= s.T <= 120 and s.fps == 30.0
     assert s.object_pose.dtype == torch.float64 and s.object_pose.shape == (s.T, 4, 4)
     check_transforms(s.object_pose, "object_pose")
     for h in s.hands:
@@ -572,3 +573,19 @@ def test_builtin_name_over_a_directory_without_scene_toml(tmp_path, monkeypatch)
     assert load_scene("box-turn").name == "box-turn" and load_scene("box-turn").T == 66
     with pytest.raises(MissingFileError, match="scene.toml"):
         load_scene("./box-turn")
+
+
+def test_box_alternate_hands_take_turns():
+    """box-alternate (Ye & Liu Fig. 8): while one hand holds the box (rigid with it) the other waits at least 10 cm
+    from it, and the box turns only while a hand holds it."""
+    s = builtin_scene("box-alternate")
+    box = s.object_pose[:, :3, 3]
+    right, left = (s.hands[i].wrist_pose[:, :3, 3] for i in range(2))
+    held = {"right": range(10, 51), "left": range(61, 102)}
+    for side, other in (("right", left), ("left", right)):
+        frames = list(held[side])
+        assert float((other[frames] - box[frames]).norm(dim=-1).min()) > 0.10
+    yaw = torch.atan2(s.object_pose[:, 1, 0], s.object_pose[:, 0, 0])
+    still = [t for t in range(s.T) if t not in held["right"] and t not in held["left"]]
+    assert float((yaw[1:] - yaw[:-1]).abs()[[t - 1 for t in still if t > 0 and t - 1 in still]].max()) < 1e-12
+    assert abs(float(yaw[-1]) - math.radians(80.0)) < 1e-9

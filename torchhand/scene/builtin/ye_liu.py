@@ -324,3 +324,35 @@ def handle_lift_palm() -> Scene:
     return dataclasses.replace(offset_object(handle_lift(), HANDLE_PALM_OFFSET), name="handle-lift-palm",
                                description=_HANDLE_PALM)
 
+
+
+_BOX_ALTERNATE = ("A 9 x 7 x 6 cm box (0.25 kg) on the table is turned twice about the vertical, 40 degrees by the "
+                  "right hand from above, then, the right hand gone, 40 degrees more by the left hand from above: the "
+                  "hands' contacts alternate (Ye & Liu Fig. 8).")
+
+
+def _timed_track(object_pose: np.ndarray, T_obj_hand: np.ndarray, hold: tuple[int, int], aside) -> np.ndarray:
+    """(T, 4, 4) wrist poses rigid with the object in ``hold``; outside it the hand waits ``aside`` (3,) metres
+    away (world), moving in over the ``_APPROACH`` frames before the hold and out over those after it."""
+    T = object_pose.shape[0]
+    k0, k1 = hold
+    k = np.arange(T, dtype=np.float64)
+    away = 1.0 - _smooth((k - (k0 - _APPROACH)) / _APPROACH) + _smooth((k - k1) / _APPROACH)
+    wrist = object_pose[np.clip(np.arange(T), k0, k1)] @ T_obj_hand
+    wrist[:, :3, 3] += away[:, None] * np.asarray(aside, dtype=np.float64)
+    return wrist
+
+
+@register_scene("box-alternate", _BOX_ALTERNATE)
+def box_alternate() -> Scene:
+    T = 112
+    extents = (0.09, 0.07, 0.06)
+    mesh, z0 = _resting_box(extents)
+    obj = RigidObject.from_trimesh(mesh, mass=0.25, name="box")
+    right, left = (_APPROACH, 50), (61, T - 1 - _APPROACH)
+    theta = math.radians(40.0) * (_ramp(T, right[0] + 4, right[1] - 4) + _ramp(T, left[0] + 4, left[1] - 4))
+    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
+    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.0, 0.0, 0.5 * extents[2] + _GAP))
+    return _scene("box-alternate", _BOX_ALTERNATE, obj, pose,
+                  [("right", _timed_track(pose, grasp, right, (0.0, -0.15, 0.08))),
+                   ("left", _timed_track(pose, grasp, left, (0.0, 0.15, 0.08)))])
