@@ -21,7 +21,9 @@ from torchhand.scene.builtin import builtin_scene, builtin_scene_description, li
 from torchhand.scene.builtin.ye_liu import PALM_CENTRE, make_mug_mesh
 
 REQUIRED = ("box-turn", "box-pickup", "bottle-turn", "mug-pickup", "two-hand-box", "handle-lift", "handle-lift-palm")
-TAKING_TURNS = ("box-alternate",)   # one hand at a time holds the object (test_box_alternate_hands_take_turns)
+TAKING_TURNS = ("box-alternate", "cup-spin")   # hands not rigid with the object through one hold: one hand at a
+#                                                time (test_box_alternate_hands_take_turns), a still hand over a
+#                                                spinning cup (test_cup_spin_turns_under_a_still_hand)
 
 
 @pytest.fixture(scope="module")
@@ -589,3 +591,13 @@ def test_box_alternate_hands_take_turns():
     still = [t for t in range(s.T) if t not in held["right"] and t not in held["left"]]
     assert float((yaw[1:] - yaw[:-1]).abs()[[t - 1 for t in still if t > 0 and t - 1 in still]].max()) < 1e-12
     assert abs(float(yaw[-1]) - math.radians(80.0)) < 1e-9
+
+
+def test_cup_spin_turns_under_a_still_hand():
+    """cup-spin (finger gaits): the wrist stays still through the hold while the cup turns 120 degrees under it."""
+    s = builtin_scene("cup-spin")
+    w = s.hands[0].wrist_pose
+    assert float((w[10:110] - w[60]).abs().max()) < 1e-12
+    yaw = torch.atan2(s.object_pose[:, 1, 0], s.object_pose[:, 0, 0])
+    assert abs(float(yaw[-1]) - math.radians(120.0)) < 1e-9 and float(yaw[10]) == 0.0
+    assert s.environment.friction == 0.25

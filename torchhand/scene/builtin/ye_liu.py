@@ -356,3 +356,26 @@ def box_alternate() -> Scene:
     return _scene("box-alternate", _BOX_ALTERNATE, obj, pose,
                   [("right", _timed_track(pose, grasp, right, (0.0, -0.15, 0.08))),
                    ("left", _timed_track(pose, grasp, left, (0.0, 0.15, 0.08)))])
+
+
+_CUP_SPIN = ("A light paper-cup-like cylinder (radius 2 cm, height 9 cm, 0.03 kg) on a smooth table (friction 0.25) "
+             "is spun 120 degrees about its axis under a still right hand gripping its top from above (120 frames): "
+             "more than a finger's reach, so contacts must roll or relocate (Ye & Liu's finger gaits). No solution is "
+             "found yet (docs/synthesis.md, 'Finger gaits').")
+
+
+@register_scene("cup-spin", _CUP_SPIN)
+def cup_spin() -> Scene:
+    T = 120
+    radius, height = 0.02, 0.09
+    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=48)
+    obj = RigidObject.from_trimesh(mesh, mass=0.03, name="cup")
+    z0 = TABLE_HEIGHT + 0.5 * height
+    hold = (_APPROACH, T - 1 - _APPROACH)
+    theta = math.radians(120.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
+    still = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.tile([0.0, 0.0, z0], (T, 1)))
+    pose = _poses(_rot("z", theta), np.tile([0.0, 0.0, z0], (T, 1)))
+    # bottle-turn's grip (the cup's axis between the curled fingertips and the thumb), the wrist still
+    grasp = _grasp((1, 0, 0), (0, 0, 1), (0.05 - 0.095, 0.0 - 0.02, 0.5 * height + 0.025))
+    scene = _scene("cup-spin", _CUP_SPIN, obj, pose, [("right", _wrist_track(still, grasp, hold))])
+    return dataclasses.replace(scene, environment=Environment(table=True, table_height=TABLE_HEIGHT, friction=0.25))
