@@ -42,3 +42,15 @@ def test_an_unfinished_force_solve_is_resumed_before_its_verdict():
     assert int(cut.cause[0]) == CAUSE_DYNAMIC               # cut at 300 iterations: rejected
     assert int(resumed.cause[0]) == int(long.cause[0]) == CAUSE_NONE
     torch.testing.assert_close(resumed.c_force, long.c_force, atol=1e-3 * prob.weight, rtol=0)
+
+
+def test_the_resumed_verdict_holds_under_a_tiny_perturbation():
+    """The rod's frame 6 keeps its verdict, and its forces, when the hand pose moves by 1e-9 rad."""
+    prob = _rod_problem()
+    t = torch.tensor([6, 6, 6])
+    q = torch.zeros(3, 1, prob.hands[0].q_rest.shape[-1], dtype=prob.dtype)
+    q[1] += 1e-9
+    q[2] -= 1e-9
+    res = evaluate_poses(prob, t, q, settings=NodeTestSettings())
+    assert res.cause.tolist() == [CAUSE_NONE] * 3
+    torch.testing.assert_close(res.c_force[1:], res.c_force[:1].expand(2, -1, -1), atol=1e-3 * prob.weight, rtol=0)

@@ -373,9 +373,8 @@ class _Search:
             if progress is not None:
                 progress(self)
         for tree in self.trees:          # a path completed in the round that spent the budget still counts
-            if tree.stack and tree.stack[-1].t1 >= self.T and len(self.solutions) < s.solutions:
+            if tree.stack and tree.stack[-1].t1 >= self.T:
                 self._record_path(tree)
-                tree.stack.pop()
         self.stats.time_s = time.perf_counter() - start
         self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
         return [sol for sol in self.accepted]

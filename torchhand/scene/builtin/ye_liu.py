@@ -125,9 +125,10 @@ def _resting_box(extents) -> tuple[trimesh.Trimesh, float]:
     return trimesh.creation.box(extents=ext), TABLE_HEIGHT + 0.5 * ext[2]
 
 
-def _standing_cylinder(radius: float, height: float, mass: float, name: str) -> tuple[RigidObject, float]:
-    """A cylinder (32 sections) about its object-frame z axis and the z of its centre when it stands on the table."""
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=32)
+def _standing_cylinder(radius: float, height: float, mass: float, name: str,
+                       sections: int = 32) -> tuple[RigidObject, float]:
+    """A cylinder about its object-frame z axis and the z of its centre when it stands on the table."""
+    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
     return RigidObject.from_trimesh(mesh, mass=mass, name=name), TABLE_HEIGHT + 0.5 * height
 
 
@@ -294,7 +295,6 @@ def cube_turn() -> Scene:
     return _turn_from_above("cube-turn", _CUBE_TURN, (0.075, 0.075, 0.075), 0.2, "cube", 60.0)
 
 
-
 _HANDLE_LIFT = ("A spatula-like handle (rod, radius 1.2 cm, height 18 cm, 0.12 kg) standing on the table is gripped "
                 "from the side by a right hand, lifted 10 cm, held and put back down; the palm stays 1.5 cm clear of "
                 "it, so the fingers grip it against the thumb (Ye & Liu Fig. 7, far).")
@@ -323,7 +323,6 @@ def handle_lift() -> Scene:
 def handle_lift_palm() -> Scene:
     return dataclasses.replace(offset_object(handle_lift(), HANDLE_PALM_OFFSET), name="handle-lift-palm",
                                description=_HANDLE_PALM)
-
 
 
 _BOX_ALTERNATE = ("A 9 x 7 x 6 cm box (0.25 kg) on the table is turned twice about the vertical, 40 degrees by the "
@@ -367,10 +366,8 @@ _CUP_SPIN = ("A light paper-cup-like cylinder (radius 2 cm, height 9 cm, 0.03 kg
 @register_scene("cup-spin", _CUP_SPIN)
 def cup_spin() -> Scene:
     T = 120
-    radius, height = 0.02, 0.09
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=48)
-    obj = RigidObject.from_trimesh(mesh, mass=0.03, name="cup")
-    z0 = TABLE_HEIGHT + 0.5 * height
+    height = 0.09
+    obj, z0 = _standing_cylinder(0.02, height, 0.03, "cup", sections=48)
     hold = (_APPROACH, T - 1 - _APPROACH)
     theta = math.radians(120.0) * _ramp(T, hold[0] + 4, hold[1] - 4)
     still = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.tile([0.0, 0.0, z0], (T, 1)))
