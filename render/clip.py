@@ -34,6 +34,8 @@ class Clip:
     fps: frames per second
     object_mesh: trimesh.Trimesh in the object frame, metres, or None; object_pose (T, 4, 4) or None
     table_height: z of the table plane, metres, or None for no table
+    table_extent: (x_min, x_max, y_min, y_max) of a table with an edge (drawn as a block), or None (a table top
+    under the camera's target); floor_height: z of a floor, metres, or None
     contact_mask (T, K) bool, contact_point (T, K, 3) world metres, contact_force (T, K, 3) newtons, or None
     env_contact_mask (T, E), env_contact_point (T, E, 3), env_contact_force (T, E, 3), or None
     labels: lines of text drawn on the panel
@@ -44,6 +46,8 @@ class Clip:
     object_mesh: object = None
     object_pose: np.ndarray | None = None
     table_height: float | None = None
+    table_extent: tuple | None = None
+    floor_height: float | None = None
     contact_mask: np.ndarray | None = None
     contact_point: np.ndarray | None = None
     contact_force: np.ndarray | None = None
@@ -128,6 +132,8 @@ def clip_from_solution(result, solution, *, labels=()) -> Clip:
     env = scene.environment
     return Clip(hands=tuple(hands), fps=solution.fps, object_mesh=scene.object.mesh, object_pose=solution.object_pose,
                 table_height=float(env.table_height) if env.table else None,
+                table_extent=env.table_extent if env.table else None,
+                floor_height=float(env.floor_height) if getattr(env, "floor", False) else None,
                 contact_mask=solution.contact_mask, contact_point=solution.contact_point,
                 contact_force=solution.contact_force, env_contact_mask=solution.env_contact_mask,
                 env_contact_point=solution.env_contact_point, env_contact_force=solution.env_contact_force,

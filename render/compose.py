@@ -55,7 +55,19 @@ def _rgb255(c) -> tuple:
 def default_azimuth(clip: Clip) -> float:
     """A viewing azimuth (degrees about world +z) that shows the hands: for two hands, perpendicular to the line
     between the wrists; for one hand, 120 degrees round from the wrist's side of the object (toward the thumb for
-    a right hand), so the grasping fingers are seen from the side and front."""
+    a right hand), so the grasping fingers are seen from the side and front. A table with an edge (a block) is
+    kept behind the object: a view from the table's side turns round."""
+    az = _hand_azimuth(clip)
+    if clip.table_extent is None or clip.object_pose is None:
+        return az
+    x0, x1, y0, y1 = clip.table_extent
+    away = clip.object_pose[:, :2, 3].mean(0) - np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1)])
+    if away @ np.array([math.cos(math.radians(az)), math.sin(math.radians(az))]) < 0:
+        az += 180.0
+    return az
+
+
+def _hand_azimuth(clip: Clip) -> float:
     if not clip.hands:
         return -60.0
     wrists = [h.link_poses[:, 0, :3, 3].mean(0) for h in clip.hands]

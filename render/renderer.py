@@ -117,11 +117,10 @@ class ClipRenderer:
         if clip.object_mesh is not None and clip.object_pose is not None:
             obj_node = scene.add(self._object_mesh(clip.object_mesh), pose=clip.object_pose[0])
         target = camera.target
-        if clip.table_height is not None:
-            dist = float(np.linalg.norm(camera.poses[0, :3, 3] - target))
-            tmat = pr.MetallicRoughnessMaterial(baseColorFactor=s.table, metallicFactor=0.0, roughnessFactor=0.9)
-            scene.add(pr.Mesh.from_trimesh(table_mesh(target[:2], clip.table_height, 1.2 * dist), material=tmat,
-                                           smooth=False))
+        dist = float(np.linalg.norm(camera.poses[0, :3, 3] - target))
+        tmat = pr.MetallicRoughnessMaterial(baseColorFactor=s.table, metallicFactor=0.0, roughnessFactor=0.9)
+        for mesh in _environment_meshes(clip, target, dist):
+            scene.add(pr.Mesh.from_trimesh(mesh, material=tmat, smooth=False))
         cam = pr.PerspectiveCamera(yfov=camera.yfov, aspectRatio=camera.aspect, znear=0.01, zfar=100.0)
         cam_node = scene.add(cam, pose=camera.poses[0])
         # Key light from above and behind the viewer's left, casting shadows; a soft fill from the camera side.
@@ -201,3 +200,19 @@ class _Stage:
             warnings.filterwarnings("ignore", category=DeprecationWarning, module="OpenGL")
             color, _ = self.owner._renderer.render(self.scene, flags=flags)
         return np.ascontiguousarray(color[..., :3])
+
+
+def _environment_meshes(clip, target: np.ndarray, dist: float) -> list:
+    """The table (a top under the camera's target, or its block when it has an edge) and the floor."""
+    import trimesh
+
+    out = []
+    if clip.table_height is not None and clip.table_extent is None:
+        out.append(table_mesh(target[:2], clip.table_height, 1.2 * dist))
+    elif clip.table_height is not None:
+        x0, x1, y0, y1 = clip.table_extent
+        bottom = clip.floor_height if clip.floor_height is not None else clip.table_height - 0.02
+        out.append(trimesh.creation.box(bounds=[[x0, y0, bottom], [x1, y1, clip.table_height]]))
+    if clip.floor_height is not None:
+        out.append(table_mesh(target[:2], clip.floor_height, 1.2 * dist + 0.5))
+    return out

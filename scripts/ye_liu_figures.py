@@ -34,6 +34,7 @@ RUNS = {
     "handle-far": (["handle-lift"], None),
     "handle-near": (["handle-lift-palm"], None),
     "box-alternate": (["box-alternate"], None),
+    "box-carry": (["box-carry"], None),
 }
 # the panels: the paper's figure, what it shows, the run, the frame drawn (of solution 0)
 DEMOS = (
@@ -44,7 +45,11 @@ DEMOS = (
     ("Fig. 7", "handle near the palm: palm pushes", "handle-near", 35),
     ("Fig. 8", "box turned by the right hand ...", "box-alternate", 30),
     ("Fig. 8", "... then by the left hand", "box-alternate", 80),
+    ("Fig. 1", "a big box carried off the table ...", "box-carry", 45),
+    ("Fig. 1", "... past its edge, down to the floor", "box-carry", 108),
 )
+WHOLE_VIEW = {"box-carry"}
+"""Runs drawn from a camera framed on the whole motion (the table's edge and the floor in view), not on the frame."""
 MESHES = {"bunny": SHARED / "meshes" / "trimesh" / "bunny.ply",
           "mug": SHARED / "meshes" / "bigym_props" / "mug" / "assets" / "mug.obj"}
 COLUMNS = ("epsilon", "T", "time_s", "solutions", "dead_ends", "total_frames", "success_frames", "success_ratio",
@@ -84,13 +89,19 @@ def table_row(out: Path) -> dict:
     return {c: stats.get(c) for c in COLUMNS}
 
 
-def render_frame(out: Path, frame: int, size: str) -> np.ndarray | None:
-    """Frame ``frame`` of solution 0 of a run (``torchhand render``), (H, W, 3) uint8; None without a solution."""
+def render_frame(out: Path, frame: int, size: str, whole: bool = False) -> np.ndarray | None:
+    """Frame ``frame`` of solution 0 of a run (``torchhand render``), (H, W, 3) uint8; None without a solution.
+    ``whole``: the camera framed on the whole motion (every frame rendered, one kept)."""
     import imageio.v3 as iio
 
     if not any((out / "solutions").glob("sol_*.npz")):
         return None
     with tempfile.TemporaryDirectory() as tmp:
+        if whole:
+            T = json.loads((out / "stats.json").read_text())["T"]
+            subprocess.run(["torchhand", "render", str(out), "--out", tmp, "--format", "png", "--frames", f"0:{T}",
+                            "--size", size, "--no-progress"], check=True, capture_output=True)
+            return iio.imread(Path(tmp) / f"frame_{frame:05d}.png")
         png = Path(tmp) / "frame.png"
         subprocess.run(["torchhand", "render", str(out), "--out", str(png), "--frames", f"{frame}:{frame + 1}",
                         "--size", size, "--no-progress"], check=True, capture_output=True)
@@ -146,7 +157,8 @@ def main(argv=None) -> int:
         if out is None:
             continue
         rows[name] = (fig, table_row(out))
-        panels.append((f"{fig}: {what}\n({name}, frame {frame}, solution 0)", render_frame(out, frame, args.size)))
+        panels.append((f"{fig}: {what}\n({name}, frame {frame}, solution 0)",
+                       render_frame(out, frame, args.size, whole=name in WHOLE_VIEW)))
     if not panels:
         print("ye_liu_figures: no run to draw", file=sys.stderr)
         return 1

@@ -541,3 +541,17 @@ def test_signed_distance_sign_survives_a_flipped_face_region():
     sd = obj.signed_distance(pts)                                         # positive inside
     assert sd[0] > 0 and sd[1] < 0 and sd[2] < 0
     np.testing.assert_allclose(np.abs(sd), [0.05, 0.01, 0.03], atol=1e-12)
+
+
+def test_a_table_force_off_the_table_is_flagged(clean_dir, tmp_path):
+    """A table contact point lifted 5 mm off the table plane fails table_contact_m; on it, the figure is 0."""
+    root = _copy(clean_dir, tmp_path / "r")
+    _, sol, _ = _posed(root)
+    assert check_result(root).solutions[0].figures["table_contact_m"].value < 1e-6
+    t, e = np.argwhere(sol.env_contact_mask)[0]
+    p = sol.env_contact_point.copy()
+    p[t, e, 2] += 0.005
+    _edit_npz(root / "solutions" / "sol_000.npz", env_contact_point=p)
+    fig = check_result(root).solutions[0].figures["table_contact_m"]
+    assert not fig.ok and fig.value == pytest.approx(0.005, abs=1e-6)
+    assert (fig.frame, fig.where) == (t, f"table contact {e}")

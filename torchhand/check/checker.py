@@ -13,6 +13,7 @@ from ..errors import FileFormatError
 from ..io.result import Result, Solution, load_result
 from .contacts import cone_violations, contact_gaps, contact_slots
 from .geometry import ObjectMesh, object_mesh
+from .ground import environment_capsule_depth, support_gap
 from .motion import (balance_errors, joint_acceleration, joint_limit_violation, joint_speed,
                      mean_joint_difference)
 from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
@@ -163,13 +164,19 @@ def _hand_file(result: Result, k: int, side: str) -> Path | None:
 def _link_depths(sol: Solution, scene, h: PosedHand, obj: ObjectMesh, xml: Path | None):
     """(object depth, table depth or None) per link, (T, L): on the MJCF geoms posed by MuJoCo for a hand whose
     geometry is not all capsules (:mod:`.mjcf_geometry`), on the capsules otherwise."""
-    table = scene.environment.table_height if scene.environment.table else None
+    env = scene.environment
+    table = env.table_height if env.table else None
+    if not env.plain:  # a table with an edge, a floor: the checker's own solids (.ground)
+        table = env
     if xml is not None and capsule_notes(h.model, h.side):
         from .mjcf_geometry import geom_depths
 
         got = geom_depths(xml, h.model, h.q, sol.hand(h.side).root_pose, obj.mesh, sol.object_pose, table)
         if got is not None:
             return got
+    if table is env:
+        depth = np.where(h.radius > 0, environment_capsule_depth(env, h.a, h.b, h.radius), np.nan)
+        return object_depth(h, obj, sol.object_pose), depth
     return object_depth(h, obj, sol.object_pose), (table_depth(h, table) if table is not None else None)
 
 
@@ -181,7 +188,7 @@ def _penetration_figures(sol: Solution, scene, hl: list[PosedHand], obj: ObjectM
     values, labels = _columns([o for o, _ in depths], links)
     fig["object_penetration_m"] = Figure.worst("object_penetration_m", values, limits["object_penetration_m"],
                                                lambda t, x: labels[x])
-    if scene.environment.table:
+    if scene.environment.table or scene.environment.floor:
         values, _ = _columns([tb for _, tb in depths], links)
         fig["table_penetration_m"] = Figure.worst("table_penetration_m", values, limits["table_penetration_m"],
                                                   lambda t, x: labels[x])
@@ -240,9 +247,17 @@ def _contact_figures(sol: Solution, scene, hands: dict[str, PosedHand], obj: Obj
                                             scene.friction, sol.env_contact_mask, sol.env_contact_force,
                                             scene.environment.friction, 1e-6 * weight)
     K = hand_cone.shape[1]
+    env = scene.environment
+    support = {}
+    if env.table or env.floor:  # every table force at a point on the surface under it
+        off = np.where(sol.env_contact_mask, np.abs(support_gap(env, np.asarray(sol.env_contact_point, np.float64))),
+                       np.nan)
+        support["table_contact_m"] = Figure.worst("table_contact_m", off, limits["table_contact_m"],
+                                                  lambda t, x: f"table contact {x}")
     return {
         "contact_object_m": Figure.worst("contact_object_m", gap_obj, limits["contact_object_m"], where),
         "contact_hand_m": Figure.worst("contact_hand_m", gap_hand, limits["contact_hand_m"], where),
+        **support,
         "cone_violation": Figure.worst("cone_violation", np.concatenate([hand_cone, table_cone], axis=1),
                                        limits["cone_violation"],
                                        lambda t, x: where(t, x) if x < K else f"table contact {x - K}"),

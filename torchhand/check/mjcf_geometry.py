@@ -44,7 +44,8 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
         model: the :class:`~torchhand.hand.HandModel` read from it (link and joint names)
         q: (T, D) radians, ``model.joint_names`` order; root: (T, 4, 4) the root poses
         obj_mesh: the object mesh (object frame); object_pose: (T, 4, 4)
-        table_height: z of the table, or None
+        table_height: z of the table, or None; or a scene's ``Environment`` with a table edge or a floor (the
+            depth of the geom points in its solids, :mod:`.ground`)
     Returns:
         (object depth (T, L), table depth (T, L) or None), metres, NaN for links without geoms; or None when
         MuJoCo is not installed.
@@ -73,7 +74,7 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
                 depth = max(depth, float(trimesh.proximity.signed_distance(tm, in_geom[near]).max()))
             obj_depth[t, link] = np.fmax(obj_depth[t, link], depth)
             if tab_depth is not None:
-                tab_depth[t, link] = np.fmax(tab_depth[t, link], table_height - float(world[:, 2].min()))
+                tab_depth[t, link] = np.fmax(tab_depth[t, link], _table_depth(table_height, world))
     return obj_depth, tab_depth
 
 
@@ -225,3 +226,13 @@ def _quat_wxyz(R: np.ndarray) -> np.ndarray:
 
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return np.array([w, x, y, z])
+
+
+def _table_depth(table, world: np.ndarray) -> float:
+    """Depth of the points ``world`` (n, 3) under the table plane ``table`` (a height) or in an environment's
+    solids."""
+    if isinstance(table, (int, float)):
+        return table - float(world[:, 2].min())
+    from .ground import environment_point_depth
+
+    return float(environment_point_depth(table, world).max())

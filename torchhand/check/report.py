@@ -39,6 +39,7 @@ FIGURES = MappingProxyType({
     "finger_penetration_m": _Meta("finger-finger penetration", "m"),
     "contact_object_m": _Meta("contact-object gap", "m"),
     "contact_hand_m": _Meta("contact-hand gap", "m"),
+    "table_contact_m": _Meta("table contact off its surface", "m"),
     "cone_violation": _Meta("cone violation", "rel"),
     "force_error": _Meta("force error", "rel"),
     "torque_error": _Meta("torque error", "rel"),
@@ -56,6 +57,7 @@ LIMITS = MappingProxyType({
     "finger_penetration_m": 0.002,
     "contact_object_m": 0.002,
     "contact_hand_m": 0.002,
+    "table_contact_m": 1e-4,
     "cone_violation": 1e-3,
     "force_error": 0.01,
     "torque_error": 0.01,
@@ -70,6 +72,8 @@ LIMITS = MappingProxyType({
   in a capsule of another finger of the same hand, metres.
 * ``contact_object_m`` / ``contact_hand_m``: distance of a contact point to the object's surface / to its link's
   capsule surface, metres.
+* ``table_contact_m``: height of an object-table (or object-floor) contact point above or below the surface under
+  it (the table top over the table, the floor elsewhere; none: infinite), metres.
 * ``cone_violation``: ``max(|f_t| - mu f_n, -f_n)`` over hand and table forces, divided by the frame's largest
   force (hand and table).
 * ``force_error``: ``|sum f + m g - m a|`` over ``m |g|``; ``torque_error``: ``|sum (p - c) x f - (I alpha +

@@ -186,9 +186,14 @@ def summary(scene) -> str:
                      f"{float(d.min()):.3f}..{float(d.max()):.3f} m")
     lines.append(f"friction:     hand-object {scene.friction:g}")
     if env.table:
-        lines.append(f"environment:  table at z = {env.table_height:.4f} m, object-table friction {env.friction:g}")
+        edge = "" if env.table_extent is None else (" over x {:.3f}..{:.3f}, y {:.3f}..{:.3f} m"
+                                                   .format(*env.table_extent))
+        lines.append(f"environment:  table at z = {env.table_height:.4f} m{edge}, object-table friction "
+                     f"{env.friction:g}")
     else:
         lines.append("environment:  no table")
+    if env.floor:
+        lines.append(f"              floor at z = {env.floor_height:.4f} m")
     g = scene.gravity.tolist()
     lines.append(f"gravity:      ({g[0]:g}, {g[1]:g}, {g[2]:g}) m/s^2")
     return "\n".join(lines)

@@ -14,7 +14,10 @@ Scene graph (the node names are the interface: readers look nodes up by name)
                                rotation = ``object_pose``.
     ``table``                  child of world, only when the scene has a table: a static box 2 cm thick, top face at
                                ``table_height``, covering the xy box of the object and wrist positions padded by
-                               0.3 m.
+                               0.3 m; for a table with an edge (``table_extent``), its block over that rectangle down
+                               to the floor (or 2 cm thick without one).
+    ``floor``                  child of world, only when the scene has a floor: a static box 2 cm thick, top face at
+                               ``floor_height``, under the object, the wrists and the table.
     ``<side>_hand``            child of world at the identity, per hand (``right_hand``, ``left_hand``).
     ``<side>/<link>``          one node per link of the hand model (``right/palm``, ``right/index_distal``), child of
                                its ``link_parent``'s node, the root link's node child of ``<side>_hand``. Animated
@@ -97,12 +100,13 @@ def solution_glb(result, index: int, *, contacts: bool = False, contact_radius: 
                                                                np.asarray(scene.object.mesh.faces)), "object"))
     w.animate(obj, sol.object_pose[:, None])
 
-    if scene.environment.table:
+    env = scene.environment
+    if env.table or env.floor:
         xy = np.concatenate([sol.object_pose[:, :2, 3]] + [h.root_pose[:, :2, 3] for h in sol.hands])
         lo, hi = xy.min(0) - TABLE_PAD, xy.max(0) + TABLE_PAD
-        top = float(scene.environment.table_height)
-        box = trimesh.creation.box(bounds=[[lo[0], lo[1], top - TABLE_THICKNESS], [hi[0], hi[1], top]])
-        w.node("table", world, mesh=w.mesh("table", *_flat(box.vertices, box.faces), "table"))
+        for name, bounds in _environment_boxes(env, lo, hi):
+            box = trimesh.creation.box(bounds=bounds)
+            w.node(name, world, mesh=w.mesh(name, *_flat(box.vertices, box.faces), "table"))
 
     for hs in sol.hands:
         _hand(w, world, result.hand_models[hs.side], hs)
@@ -114,6 +118,26 @@ def solution_glb(result, index: int, *, contacts: bool = False, contact_radius: 
     w.g.buffers = [gl.Buffer(byteLength=len(blob))]
     w.g.set_binary_blob(blob)
     return b"".join(w.g.save_to_bytes())
+
+
+def _environment_boxes(env, lo: np.ndarray, hi: np.ndarray) -> list:
+    """(name, bounds (2, 3)) of the boxes that show the environment: a table top over ``lo``-``hi`` (x, y) under an
+    unbounded table plane, the table block over its rectangle down to the floor (or a top ``TABLE_THICKNESS``
+    thick) for a table with an edge, and a floor slab over ``lo``-``hi`` and the table."""
+    out = []
+    if env.table:
+        top = float(env.table_height)
+        if env.table_extent is None:
+            out.append(("table", [[lo[0], lo[1], top - TABLE_THICKNESS], [hi[0], hi[1], top]]))
+        else:
+            x0, x1, y0, y1 = env.table_extent
+            bottom = float(env.floor_height) if env.floor else top - TABLE_THICKNESS
+            out.append(("table", [[x0, y0, bottom], [x1, y1, top]]))
+            lo, hi = np.minimum(lo, [x0, y0]), np.maximum(hi, [x1, y1])
+    if env.floor:
+        f = float(env.floor_height)
+        out.append(("floor", [[lo[0], lo[1], f - TABLE_THICKNESS], [hi[0], hi[1], f]]))
+    return out
 
 
 def write_solution_glb(result, index: int, path, *, contacts: bool = False) -> Path:

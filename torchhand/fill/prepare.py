@@ -102,6 +102,7 @@ def prepare_capture(scene, *, slide_speed: float | None = None, tolerance: Wrist
     phases = dict(phases or {})
     for h in scene.hands:
         phases.setdefault(h.side, segment_phases(scene, h.side))
+    scene.environment.require_plain("fill")
     obj = None
     if capture and object_rest is not None:
         obj = steady_object(scene.object_pose, scene.object.mesh, scene.environment.table_height

@@ -133,6 +133,7 @@ def _environment(scene, variants: tuple, settings: ResynthSettings, dtype: torch
         sdf, mesh = None, True
     else:
         sdf, mesh = SDFGrid.from_mesh(rigid.mesh, settings.sdf_voxel, progress=False).to("cpu", dtype), None
+    scene.environment.require_plain("resynthesis")
     env = None
     if scene.environment.table:
         env = TablePlane((0.0, 0.0, 1.0), scene.environment.table_height, scene.environment.friction)

@@ -189,6 +189,7 @@ def _stage1(scene, settings: ManipulationSettings, run, tally: _Tally) -> tuple[
     pose = geo.pose
     H0 = len(c.link)
     links0 = np.array(c.link)
+    scene.environment.require_plain("manipulation")
     env = scene.environment
     table = env.table_height if env.table else None
     gravity = tuple(scene.gravity.double().tolist())

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from ..errors import InputTypeError, InputValueError, ShapeError, UnknownNameError
+from ..geometry.ground import Ground
 
 SIDES = ("right", "left")
 """Hand sides, in the order hands are stored in a scene file."""
@@ -113,19 +114,58 @@ class Environment:
     Fields
         table: whether there is a horizontal table plane, bool
         table_height: z of the table plane, float, world, metres (ignored when ``table`` is False)
-        friction: object-table Coulomb friction coefficient, float, >= 0
+        friction: object-table (and object-floor) Coulomb friction coefficient, float, >= 0
+        table_extent: ``(x_min, x_max, y_min, y_max)`` of the table top, world, metres, or None (an unbounded
+            plane); with an extent the table is a block under that rectangle
+        floor: whether there is a floor plane below the table (needs a ``table_extent``, or no table)
+        floor_height: z of the floor plane, float, world, metres (ignored when ``floor`` is False)
+
+    :meth:`ground` gives the solids as a :class:`~torchhand.geometry.ground.Ground`. Synthesis and the checker
+    handle every environment; interaction capture, manipulation and fill handle only a ``plain`` one (an unbounded
+    table or nothing).
     """
 
     table: bool = False
     table_height: float = 0.0
     friction: float = 0.5
+    table_extent: tuple | None = None
+    floor: bool = False
+    floor_height: float = 0.0
 
     def __post_init__(self):
-        if not isinstance(self.table, (bool, np.bool_)):
-            raise InputTypeError(f"Environment.table: expected a bool, got {type(self.table).__name__}")
-        object.__setattr__(self, "table", bool(self.table))
+        for name in ("table", "floor"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputTypeError(f"Environment.{name}: expected a bool, got {type(getattr(self, name)).__name__}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
         object.__setattr__(self, "table_height", _check_number(self.table_height, "Environment.table_height"))
+        object.__setattr__(self, "floor_height", _check_number(self.floor_height, "Environment.floor_height"))
         object.__setattr__(self, "friction", _check_number(self.friction, "Environment.friction", low=0.0))
+        if self.table_extent is not None:
+            object.__setattr__(self, "table_extent", tuple(self.table_extent)
+                               if isinstance(self.table_extent, (tuple, list)) else self.table_extent)
+        try:
+            g = self.ground()
+        except InputValueError as e:
+            raise InputValueError(str(e).replace("Ground", "Environment", 1)) from None
+        if g.table_extent is not None:
+            object.__setattr__(self, "table_extent", g.table_extent)
+
+    def ground(self) -> Ground:
+        """The table and floor as solids (:class:`~torchhand.geometry.ground.Ground`)."""
+        return Ground(table_height=self.table_height if self.table else None,
+                      table_extent=self.table_extent if self.table else None,
+                      floor_height=self.floor_height if self.floor else None)
+
+    @property
+    def plain(self) -> bool:
+        """No floor and no table edge: an unbounded table plane or nothing."""
+        return not self.floor and (not self.table or self.table_extent is None)
+
+    def require_plain(self, method: str) -> None:
+        """Raise :class:`InputValueError` naming ``method`` when the environment has a table edge or a floor."""
+        if not self.plain:
+            raise InputValueError(f"{method}: the scene's environment has a table edge or a floor; {method} supports "
+                                  f"only an unbounded table plane (torchhand synthesize handles both)")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ _SCHEMA = {
     "": {"format_version", "scene", "object", "environment", "hands", "source"},
     "scene": {"name", "description", "fps", "friction", "gravity", "trajectories", "external_wrench"},
     "object": {"name", "mesh", "mass", "density", "scale", "repair"},
-    "environment": {"table", "table_height", "friction"},
+    "environment": {"table", "table_height", "friction", "table_extent", "floor", "floor_height"},
     "hands": {"side", "length", "model", "mount", "rest"},
     "source": {"kind", "fps", "frames", "first_frame", "units_scale", "up_axis", "handedness", "wrists"},
     "source.wrists": {"side", "file", "joint", "rotation"},
@@ -132,11 +132,21 @@ def load_scene_dir(directory: Path) -> Scene:
     repair = r.get(ob, "object", "repair", "bool", False)
     obj_name = r.get(ob, "object", "name", "str", Path(mesh_name).stem)
 
-    environment = Environment(
-        table=r.get(env, "environment", "table", "bool", False),
-        table_height=float(r.get(env, "environment", "table_height", "number", 0.0)),
-        friction=r.positive(env, "environment", "friction", 0.5, strict=False),
-    )
+    extent = env.get("table_extent")
+    if extent is not None and not (isinstance(extent, list) and len(extent) == 4 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in extent)):
+        raise FileFormatError(f"{toml_path}: field environment.table_extent: expected [x_min, x_max, y_min, y_max], "
+                              f"got {extent!r}")
+    fields = dict(table=r.get(env, "environment", "table", "bool", False),
+                  table_height=float(r.get(env, "environment", "table_height", "number", 0.0)),
+                  friction=r.positive(env, "environment", "friction", 0.5, strict=False),
+                  table_extent=None if extent is None else tuple(float(v) for v in extent),
+                  floor=r.get(env, "environment", "floor", "bool", False),
+                  floor_height=float(r.get(env, "environment", "floor_height", "number", 0.0)))
+    try:
+        environment = Environment(**fields)
+    except InputValueError as e:
+        raise FileFormatError(f"{toml_path}: [environment]: {e}") from None
 
     hands_doc = doc.get("hands")
     if not isinstance(hands_doc, list) or not 1 <= len(hands_doc) <= 2:

@@ -90,9 +90,7 @@ def _write_files(scene: Scene, out: Path) -> None:
         } | ({_EXTERNAL: True} if scene.external_wrench is not None else {}),
         "object": {"name": scene.object.name, "mesh": _MESH_FILE, "mass": float(scene.object.mass),
                    "scale": 1.0},
-        "environment": {"table": bool(scene.environment.table),
-                        "table_height": float(scene.environment.table_height),
-                        "friction": float(scene.environment.friction)},
+        "environment": _environment_doc(scene.environment),
     }
     if scene.source is not None:
         doc["source"] = _source_doc(scene.source)
@@ -137,3 +135,15 @@ def _source_doc(src: MocapSource) -> dict:
             "wrists": [{"side": side, "file": file, "joint": joint}
                        | ({"rotation": [list(r) for r in rot[side]]} if side in rot else {})
                        for side, file, joint in src.wrists]}
+
+
+def _environment_doc(env) -> dict:
+    """The [environment] table; the table edge and the floor only when the scene has them (older readers and
+    older files stay as they were)."""
+    doc = {"table": bool(env.table), "table_height": float(env.table_height), "friction": float(env.friction)}
+    if env.table_extent is not None:
+        doc["table_extent"] = [float(v) for v in env.table_extent]
+    if env.floor:
+        doc["floor"] = True
+        doc["floor_height"] = float(env.floor_height)
+    return doc

@@ -74,7 +74,7 @@ def _up_rotation(up: str) -> np.ndarray:
 def _rest_frame(scene) -> int | None:
     from ._contacts import environment_contacts
 
-    if not scene.environment.table:
+    if scene.environment.ground().empty:
         return None
     on = environment_contacts(scene).mask.any(-1).nonzero()
     return int(on[0, 0]) if on.numel() else None
@@ -178,12 +178,14 @@ def offset_object(scene, offset, *, side: str | None = None):
     shift = W[:, :3, :3] @ torch.as_tensor(o)                                  # (T, 3) world
     pose = scene.object_pose.detach().cpu().double().clone()
     pose[:, :3, 3] += shift
-    if scene.environment.table:
+    ground = scene.environment.ground()
+    if not ground.empty:
         v = torch.as_tensor(np.asarray(scene.object.mesh.convex_hull.vertices))
-        low = ((pose[:, None, :3, :3] @ v[None, :, :, None]).squeeze(-1) + pose[:, None, :3, 3])[..., 2].amin(-1)
-        under = (low < scene.environment.table_height - 1e-3).nonzero().squeeze(-1).tolist()
+        world = (pose[:, None, :3, :3] @ v[None, :, :, None]).squeeze(-1) + pose[:, None, :3, 3]
+        low = (world[..., 2] - ground.support_height(world)).amin(-1)          # height over the surface below
+        under = (low < -1e-3).nonzero().squeeze(-1).tolist()
         if under:
-            depth = 1e3 * float(scene.environment.table_height - low.min())
+            depth = -1e3 * float(low.min())
             raise InputValueError(f"offset: the object would go {depth:.1f} mm into the table at {len(under)} "
                                   f"frame(s) ({under[0]}-{under[-1]})")
     return dataclasses.replace(scene, object_pose=pose.to(scene.object_pose))

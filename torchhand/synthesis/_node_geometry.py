@@ -8,6 +8,7 @@ import torch
 
 from torchhand.kernels.frames import tangent_frame
 
+from .reconstruct_bounds import ground_capsule_depth
 from .reconstruct_bounds import table_depth as capsule_table_depth
 from .problem import SynthesisProblem
 
@@ -107,8 +108,11 @@ def surface_contacts(problem: SynthesisProblem, t: torch.Tensor, point: torch.Te
 
 
 def table_depth(problem: SynthesisProblem, hand, poses: torch.Tensor) -> torch.Tensor:
-    """How far each link's collision capsule reaches below the table plane, (N, L) metres (<= 0 above it), from
-    link poses (N, L, 4, 4). Zero everywhere without a table."""
+    """How far each link's collision capsule reaches below the table plane (or into the table block and under the
+    floor, ``problem.ground``), (N, L) metres (<= 0 clear of them), from link poses (N, L, 4, 4). Zero everywhere
+    without a table or floor."""
+    if problem.ground is not None:
+        return ground_capsule_depth(problem.ground, hand, poses)[0]
     if problem.table_height is None:
         return poses.new_zeros(poses.shape[:2])
     return capsule_table_depth(hand, poses, problem.table_height)

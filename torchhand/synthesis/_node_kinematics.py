@@ -39,10 +39,10 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     # rejected step does not hold back the others, as F independent solves would behave, in one batched solve.
     G = F + 1
     lf = hand.link_finger
-    table = problem.table_height
+    table, ground = problem.table_height, problem.ground
     ax_group = torch.where(lf[ax_link] >= 0, lf[ax_link], F)
     res_group = torch.cat([torch.where(lf[slot_link] >= 0, lf[slot_link], F).repeat_interleave(3),
-                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if table is not None else []))
+                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if table is not None or ground is not None else []))
     jf = hand.link_finger[hand.chain.joint_link]
     joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
     free = (hi > lo).to(q.dtype)                                         # (N, D)
@@ -73,6 +73,12 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
             # the table: every finger capsule stays above the plane z = table (one-sided, as the object)
             rt = (ax_r + s.push_margin - (xa[..., 2] - table)).clamp_min(0)         # (N, A)
             Jf.append(-J[:, P + 2 * F:, 2] * (rt > 0).to(q.dtype)[..., None])
+            rf.append(rt)
+        elif ground is not None:
+            # a table block and a floor: the same, along the solids' outward normal
+            gsd, gn = ground.point_distance(xa)                                     # (N, A), (N, A, 3)
+            rt = (ax_r + s.push_margin - gsd).clamp_min(0)
+            Jf.append(-(gn.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * (rt > 0).to(q.dtype)[..., None])
             rf.append(rt)
         Jf, rf = torch.cat(Jf, 1), torch.cat(rf, 1)
         cost = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, res_group, rf * rf)

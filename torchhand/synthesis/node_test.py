@@ -21,7 +21,8 @@ metacarpal and the proximal phalanges too: in this hand they have 3- and 2-DOF j
 bring them into the object), guided or free; the guiding point stays in the problem. The table is a collision constraint of the same kind
 (deviation: the paper does not test hand against table): with a table in the scene, the same capsule-axis points
 get one-sided residuals max(0, r + margin - (z - table)), and a link whose capsule reaches more than ``pen_tol``
-below the plane fails its finger (the palm: the hand) in the kinematic test (:func:`table_depth`).
+below the plane fails its finger (the palm: the hand) in the kinematic test (:func:`table_depth`). A table with an
+edge and a floor (``problem.ground``) work the same way with the solids' signed distance and outward normal.
 
 Contacts P: for every link, its surface sample with the smallest signed distance (the grid's), when that
 sample's exact distance (:meth:`~torchhand.geometry.sdf.SDFGrid.query_surface`: to the mesh's triangles nearest to
@@ -170,9 +171,9 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         cdepth = link_capsule_depth(hand, poses, problem.sdf, problem.object_inv[t])  # (N, L)
         fingers_deep = _finger_depth(hand, -cdepth) > s.pen_tol
         palm_deep = ((cdepth > s.pen_tol) & (lf < 0)).any(-1, keepdim=True)
-        if problem.table_height is not None:
-            # below the table: a link's capsule reaching deeper than pen_tol under the plane fails its finger
-            # (or, for the palm, the hand)
+        if problem.table_height is not None or problem.ground is not None:
+            # below the table (into the table block, under the floor): a link's capsule reaching deeper than pen_tol
+            # into them fails its finger (or, for the palm, the hand)
             under = table_depth(problem, hand, poses) > s.pen_tol                    # (N, L)
             fingers_deep = fingers_deep | _finger_depth(hand, torch.where(under, -1.0, 0.0).to(deep.dtype)).bool()
             palm_deep = palm_deep | (under & (lf < 0)).any(-1, keepdim=True)

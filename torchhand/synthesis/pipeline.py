@@ -197,7 +197,8 @@ def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, n
             rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
                                      object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
                                      max_inner=8, step_tol=1e-3, table_height=problem.table_height,
-                                     max_joint_step=joint_speed / problem.fps, finger_tol=0.5 * ns.finger_tol)
+                                     max_joint_step=joint_speed / problem.fps, finger_tol=0.5 * ns.finger_tol,
+                                     ground=problem.ground)
             qs.append(rec.q.to(sol.q.dtype))
         q_rec = torch.stack(qs, 1)
         if speed_ok(q_rec):

@@ -52,7 +52,10 @@ class SynthesisProblem:
     env_friction: object-table friction coefficient; friction: hand-object friction coefficient
     mass:         object mass, kg; weight: m |g|, newtons (the force scale of the checks)
     fps:          frames per second
-    table_height: z of the table plane, world, metres; None without a table (the hands must stay above it)
+    table_height: z of the table plane, world, metres; None without a table (the hands must stay above it) and
+                  for a table with an edge or a floor, which ``ground`` describes instead
+    ground:       the table block and floor (:class:`~torchhand.geometry.ground.Ground`) that the hands must stay
+                  out of, when the environment is not a plain table (``Environment.plain``); None otherwise
     mesh:         the object's trimesh.Trimesh, object frame (exact normals in the final check), or None
     """
 
@@ -75,6 +78,7 @@ class SynthesisProblem:
     fps: float
     table_height: float | None = None
     mesh: object = None
+    ground: object = None
 
     @property
     def T(self) -> int:
@@ -240,4 +244,5 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
                         env.support_index.to(device), env.normal.to(device, dtype)),
         env_friction=float(scene.environment.friction), friction=float(scene.friction), mass=float(obj.mass),
         weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps),
-        table_height=float(scene.environment.table_height) if scene.environment.table else None, mesh=obj.mesh)
+        table_height=float(scene.environment.table_height) if scene.environment.table and scene.environment.plain
+        else None, mesh=obj.mesh, ground=None if scene.environment.plain else scene.environment.ground())

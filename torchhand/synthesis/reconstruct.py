@@ -55,7 +55,8 @@ from ..errors import InputTypeError, InputValueError, ShapeError
 from ..hand.model import HandModel
 from ..geometry.sdf import SDFGrid
 from .exact import capsule_penetration
-from .reconstruct_bounds import (SPEED_MARGIN, finger_pair_parts, table_constraint_parts, table_depth)
+from .reconstruct_bounds import (SPEED_MARGIN, finger_pair_parts, ground_capsule_depth, ground_constraint_parts,
+                                 table_constraint_parts, table_depth)
 
 __all__ = ["ContactTrack", "ReconstructStatus", "ReconstructResult", "reconstruct_motion"]
 from ._reconstruct_records import (_Layout, _FRAME_SCALE, _SOLVE_DTYPE, _STEP_TOL, ContactTrack, ReconstructResult,
@@ -90,6 +91,7 @@ def reconstruct_motion(
     table_height: float | None = None,
     max_joint_step: float | None = None,
     finger_tol: float | None = None,
+    ground=None,
 ) -> ReconstructResult:
     """Smooth a searched finger-motion path while keeping its contacts and removing penetration (Eqs. 9-11).
 
@@ -122,6 +124,7 @@ def reconstruct_motion(
                  time), a constraint of every window (:mod:`.reconstruct_bounds`)
     finger_tol:  with it, capsules of different fingers (``hand.collision_pairs``) that overlap by more than this
                  are pushed apart in the collision rounds, metres
+    ground:      a table block and floor (:class:`~torchhand.geometry.ground.Ground`) kept clear, for ``table_height``
     returns:     :class:`ReconstructResult`
 
     Raises ShapeError / InputTypeError / InputValueError naming the argument on bad input.
@@ -146,13 +149,13 @@ def reconstruct_motion(
 
     penetration = q.new_zeros(T)
     object_inv = None if object_pose is None else rigid_inverse(object_pose)
-    rounds = 0
+    rounds, table = 0, (ground if ground is not None else table_height)
     for rounds in range(1, max_outer + 1):
         if F > 0:
             q, lam_eq, lam_in = _smooth_sequence(problem, q, eq, ineq, lam_eq, lam_in, segment)
-        if sdf is None and table_height is None and finger_tol is None:
+        if sdf is None and table is None and finger_tol is None:
             break
-        new, penetration, over = _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table_height,
+        new, penetration, over = _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table,
                                                   finger_tol, margin)
         if rounds == max_outer or not (over or bool((penetration > penetration_tol).any())):
             break
@@ -197,9 +200,10 @@ def _build_problem(hand, layout, root, q, q_rest, free, contacts, *, bend_weight
     return problem, eq, lam_eq, ineq, lam_in
 
 
-def _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table_height, finger_tol, margin):
+def _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table, finger_tol, margin):
     """One collision round of :func:`reconstruct_motion`: the penetration of the smoothed motion (object, table) and
-    the new inequality constraints that push capsules out (object, table, other fingers).
+    the new inequality constraints that push capsules out (object, table, other fingers). ``table``: a table
+    height, a :class:`~torchhand.geometry.ground.Ground` or None.
     Returns the new constraints, the penetration per frame (T,) and whether fingers overlap beyond ``finger_tol``."""
     T = q.shape[0]
     poses = hand.forward_kinematics(q, root)
@@ -209,10 +213,12 @@ def _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table_
         pen = capsule_penetration(hand, poses, sdf, object_pose, object_inv)
         penetration = pen[0].amax(1).clamp_min(0)
         new.append(_collision_constraints(hand, layout, pen, margin, q))
-    if table_height is not None:
-        below = table_depth(hand, poses, table_height)[:, layout.movable]
+    if table is not None:
+        ground = None if isinstance(table, (int, float)) else table
+        below = (table_depth(hand, poses, table) if ground is None
+                 else ground_capsule_depth(ground, hand, poses)[0])[:, layout.movable]
         penetration = torch.maximum(penetration, below.amax(1).clamp_min(0) if below.shape[1] else penetration)
-        new.append(_table_constraints(hand, layout, poses, table_height, margin))
+        new.append(_table_constraints(hand, layout, poses, table, margin))
     over = False
     if finger_tol is not None:
         overlap, link, local, target, normal, mask = finger_pair_parts(hand, poses, layout.movable, margin)
@@ -336,12 +342,16 @@ def _collision_constraints(hand: HandModel, layout: _Layout, pen, margin: float,
                         normal=normal)
 
 
-def _table_constraints(hand: HandModel, layout: _Layout, poses: torch.Tensor, table: float,
+def _table_constraints(hand: HandModel, layout: _Layout, poses: torch.Tensor, table,
                        margin: float) -> _Constraints:
-    """One-sided constraints keeping every movable link's capsule above the table (see
-    :func:`.reconstruct_bounds.table_constraint_parts`), (T, M) slots."""
+    """One-sided constraints keeping every movable link's capsule above the table plane ``table`` (a height) or out
+    of a :class:`~torchhand.geometry.ground.Ground`'s solids (see :func:`.reconstruct_bounds.table_constraint_parts`
+    and ``ground_constraint_parts``), (T, M) slots."""
     m = layout.movable
-    local, target, normal, mask = table_constraint_parts(hand, poses, m, table, margin)
+    if isinstance(table, (int, float)):
+        local, target, normal, mask = table_constraint_parts(hand, poses, m, table, margin)
+    else:
+        local, target, normal, mask = ground_constraint_parts(table, hand, poses, m, margin)
     link = m.expand(poses.shape[0], -1)
     return _Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=local, target=target, mask=mask,
                         normal=normal)

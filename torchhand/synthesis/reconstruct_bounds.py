@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["SPEED_MARGIN", "table_depth", "table_constraint_parts", "finger_pair_parts", "speed_values", "speed_terms",
-           "speed_penalty", "speed_update"]
+__all__ = ["SPEED_MARGIN", "table_depth", "table_constraint_parts", "ground_capsule_depth", "ground_constraint_parts",
+           "finger_pair_parts", "speed_values", "speed_terms", "speed_penalty", "speed_update"]
 
 SPEED_MARGIN = 0.97
 """The reconstruction bounds joint steps at this fraction of the requested bound."""
@@ -38,6 +38,37 @@ def table_depth(hand, poses: torch.Tensor, table: float) -> torch.Tensor:
     za = (R @ hand.capsule_a.unsqueeze(-1)).squeeze(-1)[..., 2] + o[..., 2]
     zb = (R @ hand.capsule_b.unsqueeze(-1)).squeeze(-1)[..., 2] + o[..., 2]
     return table - (torch.minimum(za, zb) - hand.capsule_radius)
+
+
+def ground_capsule_depth(ground, hand, poses: torch.Tensor):
+    """How deep each link's capsule reaches into the table block and under the floor (``ground``, a
+    :class:`~torchhand.geometry.ground.Ground`), (T, L) metres (<= 0 clear; -inf without solids), from link poses
+    (T, L, 4, 4); with the deepest axis point (T, L, 3) world and the solids' outward normal there (T, L, 3)."""
+    R, o = poses[..., :3, :3], poses[..., :3, 3]
+    wa = (R @ hand.capsule_a.unsqueeze(-1)).squeeze(-1) + o
+    wb = (R @ hand.capsule_b.unsqueeze(-1)).squeeze(-1) + o
+    return ground.capsule_depth(wa, wb, hand.capsule_radius)
+
+
+def ground_constraint_parts(ground, hand, poses: torch.Tensor, links: torch.Tensor, margin: float):
+    """One-sided constraints keeping the capsules of ``links`` (M,) out of ``ground``'s solids, for those within
+    ``margin`` of them: local point (T, M, 3) (the deepest axis point), target (T, M, 3) world (that point moved
+    along the solids' normal to ``radius + margin`` from them), normal (T, M, 3) and mask (T, M) bool."""
+    P = poses[:, links]                                                          # (T, M, 4, 4)
+    depth, world, normal = ground_capsule_depth(ground, _Links(hand, links), P)
+    R, o = P[..., :3, :3], P[..., :3, 3]
+    local = (R.transpose(-1, -2) @ (world - o).unsqueeze(-1)).squeeze(-1)
+    mask = depth > -margin
+    target = world + (depth + margin).clamp_min(0)[..., None] * normal
+    return local, target, normal, mask & torch.isfinite(depth)
+
+
+class _Links:
+    """The capsule fields of a subset of a hand's links (for :func:`ground_capsule_depth`)."""
+
+    def __init__(self, hand, links: torch.Tensor):
+        self.capsule_a, self.capsule_b = hand.capsule_a[links], hand.capsule_b[links]
+        self.capsule_radius = hand.capsule_radius[links]
 
 
 def table_constraint_parts(hand, poses: torch.Tensor, links: torch.Tensor, table: float, margin: float):

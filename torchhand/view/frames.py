@@ -95,11 +95,15 @@ class SolutionFrames:
 @dataclass(frozen=True)
 class TableGeometry:
     """The table top drawn under the object: the plane z = ``height`` (metres), a square of side ``2 half_size``
-    centred at ``center`` (x, y), world, metres."""
+    centred at ``center`` (x, y), world, metres; a table with an edge is its rectangle (``half_size_y`` along y)
+    and a block reaching down to ``bottom``; ``floor``: z of a floor drawn under everything, or None."""
 
     height: float
     center: tuple
     half_size: float
+    half_size_y: float | None = None
+    bottom: float | None = None
+    floor: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +154,7 @@ def load_view(result_dir) -> ViewData:
     scene = result.scene
     mesh: trimesh.Trimesh = scene.object.mesh
     fps = float(raw[0].fps) if raw[0].fps > 0 else float(scene.fps)
-    table = _table(result, sols) if scene.environment.table else None
+    table = _table(result, sols) if scene.environment.table or scene.environment.floor else None
     return ViewData(path=Path(result.path), scene=scene.name, fps=fps, frames=int(sols[0].object_pose.shape[0]),
                     complete=result.complete, object_vertices=np.asarray(mesh.vertices, dtype=np.float32),
                     object_faces=np.asarray(mesh.faces, dtype=np.uint32), table=table,
@@ -201,8 +205,16 @@ def _table(result: Result, sols: tuple) -> TableGeometry:
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     half = 0.5 * float(np.max(hi - lo)) + 0.12
     center = 0.5 * (lo + hi)
-    return TableGeometry(height=float(result.scene.environment.table_height),
-                         center=(float(center[0]), float(center[1])), half_size=half)
+    env = result.scene.environment
+    floor = float(env.floor_height) if env.floor else None
+    if env.table and env.table_extent is not None:
+        x0, x1, y0, y1 = env.table_extent
+        return TableGeometry(height=float(env.table_height), center=(0.5 * (x0 + x1), 0.5 * (y0 + y1)),
+                             half_size=0.5 * (x1 - x0), half_size_y=0.5 * (y1 - y0), bottom=floor, floor=floor)
+    if not env.table:  # a floor only: drawn as a table top at the floor
+        return TableGeometry(height=floor, center=(float(center[0]), float(center[1])), half_size=half)
+    return TableGeometry(height=float(env.table_height), center=(float(center[0]), float(center[1])),
+                         half_size=half)
 
 
 def _force_scale(sols: tuple) -> float:

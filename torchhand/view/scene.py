@@ -72,9 +72,15 @@ def build_scene(server, data: ViewData) -> SceneNodes:
     table = None
     if data.table is not None:
         tb = data.table
-        table = scene.add_box("/table", color=(185, 165, 140), dimensions=(2 * tb.half_size, 2 * tb.half_size, 0.02),
-                              position=(tb.center[0], tb.center[1], tb.height - 0.01), cast_shadow=False)
+        hy = tb.half_size if tb.half_size_y is None else tb.half_size_y
+        thick = 0.02 if tb.bottom is None else tb.height - tb.bottom
+        table = scene.add_box("/table", color=(185, 165, 140), dimensions=(2 * tb.half_size, 2 * hy, thick),
+                              position=(tb.center[0], tb.center[1], tb.height - 0.5 * thick), cast_shadow=False)
         names.append("/table")
+        if tb.floor is not None and tb.bottom is not None:
+            scene.add_box("/floor", color=(150, 150, 150), dimensions=(2 * tb.half_size + 1.0, 2 * hy + 1.0, 0.02),
+                          position=(tb.center[0], tb.center[1], tb.floor - 0.01), cast_shadow=False)
+            names.append("/floor")
     groups, links = {}, {}
     for i, sol in enumerate(data.solutions):
         group = f"/{sol.name}"

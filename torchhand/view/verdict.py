@@ -27,6 +27,7 @@ from ..check import check_result
 from ..check.contacts import cone_violations, contact_gaps, contact_slots
 from ..check.geometry import ObjectMesh, object_mesh
 from ..check.motion import balance_errors, joint_acceleration, joint_limit_violation, joint_speed
+from ..check.ground import environment_capsule_depth
 from ..check.penetration import finger_depth, finger_pairs, hand_hand_depth, object_depth, pose_hand, table_depth
 from ..check.report import FIGURES, format_value, resolve_limits
 from ..io.result import Result, Solution, load_result
@@ -101,8 +102,12 @@ def frame_figures(sol: Solution, result: Result, obj: ObjectMesh) -> dict:
 
         obj = dataclasses.replace(obj, inertia=obj.inertia * (mass / float(scene.object.mass)))
     out = {"object_penetration_m": _rows([object_depth(h, obj, sol.object_pose) for h in hl])}
-    if scene.environment.table:
-        out["table_penetration_m"] = _rows([table_depth(h, scene.environment.table_height) for h in hl])
+    env = scene.environment
+    if env.table and env.plain:
+        out["table_penetration_m"] = _rows([table_depth(h, env.table_height) for h in hl])
+    elif env.table or env.floor:  # a table with an edge, a floor
+        out["table_penetration_m"] = _rows([np.where(h.radius > 0, environment_capsule_depth(env, h.a, h.b, h.radius),
+                                                     np.nan) for h in hl])
     if len(hl) == 2:
         d = hand_hand_depth(hl[0], hl[1])
         out["hand_penetration_m"] = _rows([d.reshape(d.shape[0], -1)])

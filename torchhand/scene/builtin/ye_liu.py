@@ -270,19 +270,29 @@ _TWO_HAND_BOX = ("A 30 x 20 x 15 cm box (1 kg) is lifted 15 cm off the table by 
                  "right faces, held, and put back down.")
 
 
+def _big_box() -> tuple[RigidObject, float]:
+    """two-hand-box's box (30 x 20 x 15 cm, 1 kg) and the z of its centre resting on the table."""
+    mesh, z0 = _resting_box((0.30, 0.20, 0.15))
+    return RigidObject.from_trimesh(mesh, mass=1.0, name="big-box"), z0
+
+
+def _both_hands(name: str, description: str, obj: RigidObject, pose: np.ndarray, hold: tuple[int, int]) -> Scene:
+    """Both hands on the big box through ``hold``: palms on the +x (right hand) and -x (left hand) faces, fingers
+    pointing forward (+y), thumbs up."""
+    right = _grasp((0, 1, 0), (1, 0, 0), (0.15 + _GAP, -0.04, 0.0))
+    left = _grasp((0, 1, 0), (-1, 0, 0), (-0.15 - _GAP, -0.04, 0.0))
+    return _scene(name, description, obj, pose,
+                  [("right", _wrist_track(pose, right, hold)), ("left", _wrist_track(pose, left, hold))])
+
+
 @register_scene("two-hand-box", _TWO_HAND_BOX)
 def two_hand_box() -> Scene:
     T = 78
-    mesh, z0 = _resting_box((0.30, 0.20, 0.15))
-    obj = RigidObject.from_trimesh(mesh, mass=1.0, name="big-box")
+    obj, z0 = _big_box()
     hold = (_APPROACH, T - 1 - _APPROACH)
     lift = 0.15 * (_ramp(T, hold[0] + 4, 34) - _ramp(T, 44, hold[1] - 2))
     pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * lift, 0 * lift, z0 + lift], axis=-1))
-    # palms on the +x (right hand) and -x (left hand) faces, fingers pointing forward (+y), thumbs up
-    right = _grasp((0, 1, 0), (1, 0, 0), (0.15 + _GAP, -0.04, 0.0))
-    left = _grasp((0, 1, 0), (-1, 0, 0), (-0.15 - _GAP, -0.04, 0.0))
-    return _scene("two-hand-box", _TWO_HAND_BOX, obj, pose,
-                  [("right", _wrist_track(pose, right, hold)), ("left", _wrist_track(pose, left, hold))])
+    return _both_hands("two-hand-box", _TWO_HAND_BOX, obj, pose, hold)
 
 
 _CUBE_TURN = ("A 7.5 cm cube (0.2 kg) on the table is turned 60 degrees about the vertical axis by one right hand "
@@ -376,3 +386,24 @@ def cup_spin() -> Scene:
     grasp = _grasp((1, 0, 0), (0, 0, 1), (0.05 - 0.095, 0.0 - 0.02, 0.5 * height + 0.025))
     scene = _scene("cup-spin", _CUP_SPIN, obj, pose, [("right", _wrist_track(still, grasp, hold))])
     return dataclasses.replace(scene, environment=Environment(table=True, table_height=TABLE_HEIGHT, friction=0.25))
+
+
+_BOX_CARRY = ("two-hand-box's box (30 x 20 x 15 cm, 1 kg) carried from the table to the floor by both hands pressing "
+              "on its left and right faces: lifted 10 cm, carried 45 cm forward past the table's edge and set down on "
+              "the floor 75 cm below (the table is a block with an edge, the floor a plane).")
+CARRY_TABLE_EXTENT = (-0.6, 0.6, -0.6, 0.2)
+"""box-carry's table top, (x_min, x_max, y_min, y_max) world metres: its edge at y = 0.2, 10 cm in front of the box."""
+
+
+@register_scene("box-carry", _BOX_CARRY)
+def box_carry() -> Scene:
+    T = 120
+    obj, z0 = _big_box()
+    hold = (_APPROACH, T - 1 - _APPROACH)
+    lift = 0.10 * _ramp(T, hold[0] + 4, 32) - (TABLE_HEIGHT + 0.10) * _ramp(T, 54, hold[1] - 5)
+    forward = 0.45 * _ramp(T, 28, 58)
+    pose = _poses(np.broadcast_to(np.eye(3), (T, 3, 3)), np.stack([0 * lift, forward, z0 + lift], axis=-1))
+    scene = _both_hands("box-carry", _BOX_CARRY, obj, pose, hold)   # two-hand-box's grip
+    env = Environment(table=True, table_height=TABLE_HEIGHT, friction=0.4, table_extent=CARRY_TABLE_EXTENT,
+                      floor=True, floor_height=0.0)
+    return dataclasses.replace(scene, environment=env)
