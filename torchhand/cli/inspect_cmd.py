@@ -97,7 +97,7 @@ def run(args) -> int:
     steps.update()
 
     env = environment_contacts(scene)
-    report["environment"] = {"table": scene.environment.table,
+    report["environment"] = {"table": scene.environment.table, "floor": scene.environment.floor,
                              "frames_with_table_contact": int((env.count > 0).sum()),
                              "max_contacts": int(env.count.max()) if env.count.numel() else 0}
     report["timing_s"] = {"total": round(time.perf_counter() - t0, 3), "kinematics_and_collision": round(t_fk, 4)}
