@@ -24,7 +24,8 @@ class EnvContacts:
     """Object-table support contacts per frame, padded to ``E`` with ``mask``.
 
     Fields
-        points: contact points on the table (or floor) plane below the supporting object points, (T, E, 3), world, metres
+        points: contact points on the table (or floor) plane below the supporting object points, (T, E, 3), world,
+            metres
         mask: which entries are real contacts, (T, E), bool
         sliding_velocity: tangential velocity of the object's material point at each contact, (T, E, 3), world,
             m/s; exactly zero for a static contact (speed below ``static_speed``) and for padding
@@ -47,10 +48,11 @@ class EnvContacts:
 def environment_contacts(scene: Scene, tol: float = 0.003, static_speed: float = 1e-3) -> EnvContacts:
     """Where the object rests on the table (or the floor) in each frame.
 
-    The supporting points are the vertices of the object mesh's convex hull (object frame) whose world height is
-    at most ``tol`` above the surface under them (or below it): the table plane, or with a table edge
-    (``Environment.table_extent``) the table top inside its rectangle and the floor elsewhere. Velocities are central finite differences of their
-    world positions (one-sided at the ends), with the normal (z) component removed.
+    The supporting points are the vertices of the object mesh's convex hull (object frame) whose world height is at
+    most ``tol`` above the surface under them (or below it): the table plane, or with a table edge
+    (``Environment.table_extent``) the table top inside its rectangle and the floor elsewhere. Velocities are
+    central finite differences of their world positions (one-sided at the ends), with the normal (z) component
+    removed.
 
     Args:
         scene: the scene; without a table and a floor every frame has no contact (E = 0).

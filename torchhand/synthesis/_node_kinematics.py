@@ -41,8 +41,9 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     lf = hand.link_finger
     table, ground = problem.table_height, problem.ground
     ax_group = torch.where(lf[ax_link] >= 0, lf[ax_link], F)
+    solids = table is not None or ground is not None
     res_group = torch.cat([torch.where(lf[slot_link] >= 0, lf[slot_link], F).repeat_interleave(3),
-                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if table is not None or ground is not None else []))
+                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if solids else []))
     jf = hand.link_finger[hand.chain.joint_link]
     joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
     free = (hi > lo).to(q.dtype)                                         # (N, D)
