@@ -54,3 +54,16 @@ def test_the_resumed_verdict_holds_under_a_tiny_perturbation():
     res = evaluate_poses(prob, t, q, settings=NodeTestSettings())
     assert res.cause.tolist() == [CAUSE_NONE] * 3
     torch.testing.assert_close(res.c_force[1:], res.c_force[:1].expand(2, -1, -1), atol=1e-3 * prob.weight, rtol=0)
+
+
+def test_a_contact_the_path_lands_counts_as_new_in_the_final_test():
+    """The final test's sliding rule: a slot within contact distance at frame t - 1 is held at t (it may slide),
+    unless the searched path establishes it at t (a landing finger that came close a frame early)."""
+    from torchhand.synthesis.pipeline import held_before
+
+    c = torch.tensor([[0, 0], [1, 1], [1, 1], [1, 1]], dtype=torch.bool)     # (T, K): both on from frame 1
+    plan = torch.tensor([[0, 0], [1, 0], [1, 1], [1, 1]], dtype=torch.bool)  # slot 1 lands at frame 2
+    assert held_before(c).tolist() == [[False, False], [False, False], [True, True], [True, True]]
+    assert held_before(c, plan).tolist() == [[False, False], [False, False], [True, False], [True, True]]
+    # a slot the plan holds throughout stays held; one the plan never has is judged by the motion alone
+    assert held_before(c, torch.ones_like(c))[2:].all() and held_before(c, torch.zeros_like(c))[2:].all()

@@ -12,8 +12,9 @@
    sliding velocity (a contact held since the previous frame whose hand point moves on the object faster than
    ``NodeTestSettings.slide_speed`` is sliding and must have its force on the cone boundary: "solutions that
    violate sliding friction for non-guiding contacts are excluded", §6; the search applies the same rule, so its
-   own poses pass it). A path whose reconstruction fails this test gets its searched poses blended back in around
-   the failing frames (kept only within the speed bound). A path that cannot be smoothed is not written (unless
+   own poses pass it; a contact the path establishes at a frame is landing there, not held, as in the search). A
+   path whose fast reconstruction fails this test gets its searched poses blended back in around the failing
+   frames (kept only within the speed bound), then a reconstruction converged to 1e-4 rad, blended the same way. A path that cannot be smoothed is not written (unless
    ``keep_unsmoothed``, which writes its searched poses flagged ``reconstructed = False``), nor is one closer than
    ``min_difference`` (mean joint angle) to an earlier solution; neither counts toward ``solutions``.
 
@@ -132,17 +133,22 @@ def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -
                           for f in dataclasses.fields(FrameResult)})
 
 
-def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings, exact: bool = True):
+def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings, exact: bool = True,
+                     plan_mask: torch.Tensor | None = None):
     """The contact and dynamic test of a whole motion q (T, H, D), with the search's sliding rule (a contact held
     since the previous frame whose hand point moves on the object faster than ``ns.slide_speed`` slides): one
-    pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass."""
+    pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass.
+
+    plan_mask: the searched path's contact slots (T, K) bool. A slot the path establishes at frame t is landing
+    there: it counts as new at t (it cannot slide), as in the search, even where the smoothed finger came within the
+    contact distance a frame earlier, on its way in."""
     T = q.shape[0]
     t = torch.arange(T, device=q.device)
     ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None,
                              exact=exact)                                # full accuracy, the mesh's normals
     # contacts only (their normals do not matter here: the grid's, not the mesh's)
     first = evaluate_poses(problem, t, q, settings=dataclasses.replace(ns, exact=False), dynamics=False)
-    prev_mask = torch.cat([torch.zeros_like(first.c_mask[:1]), first.c_mask[:-1]])
+    prev_mask = held_before(first.c_mask, plan_mask)
     q_prev = torch.cat([q[:1], q[:-1]])
     res = evaluate_poses(problem, t, q, q_prev, prev_mask, settings=ns)
     retry = (res.cause == CAUSE_DYNAMIC).nonzero().squeeze(-1)
@@ -152,6 +158,17 @@ def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSet
                                settings=dataclasses.replace(ns, cone_iters=20000))
         res = _rows_replaced(res, retry, again)
     return res
+
+
+def held_before(c_mask: torch.Tensor, plan_mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Which contact slots (T, K) were held at the previous frame (and so may slide), from a motion's contacts
+    ``c_mask`` (T, K) bool; with the searched path's ``plan_mask`` (T, K), a slot the path establishes at frame t
+    (off at t - 1, on at t) counts as landing: not held at t."""
+    prev = torch.cat([torch.zeros_like(c_mask[:1]), c_mask[:-1]])
+    if plan_mask is None:
+        return prev
+    landing = plan_mask & ~torch.cat([torch.zeros_like(plan_mask[:1]), plan_mask[:-1]])
+    return prev & ~landing
 
 
 def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor, width: float = 2.0) -> torch.Tensor:
@@ -172,43 +189,32 @@ def max_joint_speed(q: torch.Tensor, fps: float) -> float:
 def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
                       reconstruct: bool = True, joint_speed: float = 8.0,
                       keep_unsmoothed: bool = False) -> tuple[FinalSolution | None, str]:
-    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn: the smoothed motion
-    (table and the joint-speed bound ``joint_speed`` rad/s are constraints of the reconstruction); the smoothed
-    motion with the searched poses blended back in around the frames that failed, if it keeps the speed bound;
-    with ``keep_unsmoothed`` (or ``reconstruct`` False) the searched poses. Returns (the first that passes the
+    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn, for the fast
+    reconstruction and then the converged one (``_RECONSTRUCTIONS``): the smoothed motion (table and the joint-speed
+    bound ``joint_speed`` rad/s are constraints of the reconstruction); the smoothed motion with the searched poses
+    blended back in around the frames that failed, if it keeps the speed bound. Then, with ``keep_unsmoothed`` (or
+    ``reconstruct`` False), the searched poses. Contacts the path establishes at a frame count as landing there
+    (``_evaluate_motion``'s ``plan_mask``). Returns (the first that passes the
     contact and dynamic test in every frame, "ok") or (None, "failed_check" | "unsmoothed")."""
     def attempt(q):
-        res = _evaluate_motion(problem, q, ns)
+        res = _evaluate_motion(problem, q, ns, plan_mask=sol.c_mask)
         return res, res.c_sliding
 
     speed_ok = lambda q: max_joint_speed(q, problem.fps) <= joint_speed * (1 + 1e-3)
     candidates = []
-    if reconstruct:
-        qs = []
-        for h, hand in enumerate(problem.hands):
-            L = hand.num_links
-            sl = slice(h * L, (h + 1) * L)
-            poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
-            link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
-            loc = sol.c_local[:, sl]
-            target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
-            mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
-            contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
-            rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
-                                     object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
-                                     max_inner=8, step_tol=1e-3, table_height=problem.table_height,
-                                     max_joint_step=joint_speed / problem.fps, finger_tol=0.5 * ns.finger_tol,
-                                     ground=problem.ground)
-            qs.append(rec.q.to(sol.q.dtype))
-        q_rec = torch.stack(qs, 1)
-        if speed_ok(q_rec):
-            res, sliding = attempt(q_rec)
-            candidates.append((q_rec, res, sliding, True))
-            if not bool(res.feasible.all()):
-                q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
-                if speed_ok(q_mix):
-                    res, sliding = attempt(q_mix)
-                    candidates.append((q_mix, res, sliding, True))
+    for settings in (_RECONSTRUCTIONS if reconstruct else ()):
+        q_rec = _reconstruct_path(problem, sol, ns, joint_speed, settings)
+        if not speed_ok(q_rec):
+            continue
+        res, sliding = attempt(q_rec)
+        candidates.append((q_rec, res, sliding, True))
+        if not bool(res.feasible.all()):
+            q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
+            if speed_ok(q_mix):
+                res, sliding = attempt(q_mix)
+                candidates.append((q_mix, res, sliding, True))
+        if bool(candidates[-1][1].feasible.all()):
+            break
     smoothed_ok = bool(candidates) and bool(candidates[-1][1].feasible.all())
     if not smoothed_ok:
         if reconstruct and not keep_unsmoothed:
@@ -221,6 +227,33 @@ def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, n
     return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point, c_normal=res.c_normal,
                          c_force=res.c_force, env_force=res.env_force, guiding=sol.guiding, guide_obj=sol.guide_obj,
                          sliding=sliding, reconstructed=smoothed, index=index), "ok"
+
+
+_RECONSTRUCTIONS = (dict(max_inner=8, step_tol=1e-3), dict(max_inner=30, step_tol=1e-4))
+"""Reconstruction settings tried in turn by :func:`finalize_solution`: the fast one (a quarter of the time, enough
+on most paths), then Gauss-Newton converged to 1e-4 rad where the fast one's motion fails the final test."""
+
+
+def _reconstruct_path(problem: SynthesisProblem, sol: Solution, ns: NodeTestSettings, joint_speed: float,
+                      settings: dict) -> torch.Tensor:
+    """The searched path's reconstruction (§6) per hand, with its contacts kept, the table and the joint-speed bound,
+    (T, H, D)."""
+    qs = []
+    for h, hand in enumerate(problem.hands):
+        L = hand.num_links
+        sl = slice(h * L, (h + 1) * L)
+        poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
+        link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
+        loc = sol.c_local[:, sl]
+        target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
+        mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
+        contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
+        rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
+                                 object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
+                                 table_height=problem.table_height, max_joint_step=joint_speed / problem.fps,
+                                 finger_tol=0.5 * ns.finger_tol, ground=problem.ground, **settings)
+        qs.append(rec.q.to(sol.q.dtype))
+    return torch.stack(qs, 1)
 
 
 def _duplicate(q: torch.Tensor, earlier: list, min_difference: float) -> bool:
