@@ -13,7 +13,7 @@ from ..errors import FileFormatError
 from ..io.result import Result, Solution, load_result
 from .contacts import cone_violations, contact_gaps, contact_slots
 from .geometry import ObjectMesh, object_mesh
-from .ground import environment_capsule_depth, support_gap
+from .ground import hand_environment_depth, support_gap
 from .motion import (balance_errors, joint_acceleration, joint_limit_violation, joint_speed,
                      mean_joint_difference)
 from .penetration import (PosedHand, capsule_notes, finger_depth, finger_pairs, hand_hand_depth, object_depth,
@@ -175,8 +175,7 @@ def _link_depths(sol: Solution, scene, h: PosedHand, obj: ObjectMesh, xml: Path 
         if got is not None:
             return got
     if table is env:
-        depth = np.where(h.radius > 0, environment_capsule_depth(env, h.a, h.b, h.radius), np.nan)
-        return object_depth(h, obj, sol.object_pose), depth
+        return object_depth(h, obj, sol.object_pose), hand_environment_depth(h, env)
     return object_depth(h, obj, sol.object_pose), (table_depth(h, table) if table is not None else None)
 
 

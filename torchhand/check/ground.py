@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["environment_point_depth", "environment_capsule_depth", "support_gap"]
+__all__ = ["environment_point_depth", "environment_capsule_depth", "hand_environment_depth", "support_gap"]
 
 _TERNARY_STEPS = 70
 
@@ -87,3 +87,12 @@ def support_gap(env, points: np.ndarray) -> np.ndarray:
             over = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
         under = np.where(over, float(env.table_height), under)
     return points[..., 2] - under
+
+
+def hand_environment_depth(hand, env) -> np.ndarray | None:
+    """Depth of a posed hand's capsules (``check.penetration.PosedHand``) in the environment's table and floor,
+    (T, L) metres, NaN for links without geometry; None without a table or floor."""
+    if not (env.table or getattr(env, "floor", False)):
+        return None
+    depth = environment_capsule_depth(env, hand.a, hand.b, hand.radius)
+    return np.where(hand.radius > 0, depth, np.nan)

@@ -27,7 +27,7 @@ from ..check import check_result
 from ..check.contacts import cone_violations, contact_gaps, contact_slots
 from ..check.geometry import ObjectMesh, object_mesh
 from ..check.motion import balance_errors, joint_acceleration, joint_limit_violation, joint_speed
-from ..check.ground import environment_capsule_depth
+from ..check.ground import hand_environment_depth
 from ..check.penetration import finger_depth, finger_pairs, hand_hand_depth, object_depth, pose_hand, table_depth
 from ..check.report import FIGURES, format_value, resolve_limits
 from ..io.result import Result, Solution, load_result
@@ -106,8 +106,7 @@ def frame_figures(sol: Solution, result: Result, obj: ObjectMesh) -> dict:
     if env.table and env.plain:
         out["table_penetration_m"] = _rows([table_depth(h, env.table_height) for h in hl])
     elif env.table or env.floor:  # a table with an edge, a floor
-        out["table_penetration_m"] = _rows([np.where(h.radius > 0, environment_capsule_depth(env, h.a, h.b, h.radius),
-                                                     np.nan) for h in hl])
+        out["table_penetration_m"] = _rows([hand_environment_depth(h, env) for h in hl])
     if len(hl) == 2:
         d = hand_hand_depth(hl[0], hl[1])
         out["hand_penetration_m"] = _rows([d.reshape(d.shape[0], -1)])
