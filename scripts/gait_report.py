@@ -12,8 +12,14 @@ A finger **relocates** when a run ends and a later run of the same finger begins
 the contact moves on the finger (``--roll``, default 3 mm, within a phalanx, or onto another phalanx) while moving
 less than half as far on the object, or moves on the object while staying on the finger. Distances are how far the
 point gets from where the stretch began (the per-frame points jitter with the surface sampling; path lengths would
-add that up). The plot draws, per finger, its runs (static grey, sliding orange, rolling blue) with a mark at every
-relocation.
+add that up). The plot draws, per finger, its runs (static grey, sliding orange, rolling without slipping blue)
+with a mark at every relocation.
+
+A stretch **rolls without slipping** when the contact moves at least ``--roll`` on both the finger and the object
+while the finger's material point at the contact slips less than half as far on the object (summed frame to
+frame). Between smooth surfaces rolling without slipping moves the contact equally far on both, so the rule above
+(one surface only) is met only by slipping: a contact creeping on the object slower than the sliding threshold
+(2 cm/s) is not flagged sliding and can pass it. Both are reported.
 """
 
 from __future__ import annotations
@@ -70,8 +76,22 @@ def finger_tracks(result, sol) -> list[dict]:
                 p_link[t] = L[:3, :3] @ p + L[:3, 3]
                 slide[t] = bool(sol.contact_sliding[t, k].any())
             tracks.append({"hand": hand.side, "finger": model.finger_names[f], "mask": mask, "p_obj": p_obj,
-                           "p_link": p_link, "link": link, "slide": slide})
+                           "p_link": p_link, "link": link, "slide": slide,
+                           "slip": _slip(poses, obj_inv, mask, link, p_link)})
     return tracks
+
+
+def _slip(poses: np.ndarray, obj_inv: np.ndarray, mask: np.ndarray, link: np.ndarray, p_link: np.ndarray):
+    """Per frame t, how far the finger's material point that touched at t - 1 moved on the object from t - 1 to t,
+    metres (T,), 0 where the finger did not touch at both frames. Rolling without slipping moves the contact on
+    both surfaces while this stays near zero; sliding moves it."""
+    out = np.zeros(len(mask))
+    for t in np.nonzero(mask[1:] & mask[:-1])[0] + 1:
+        x = np.append(p_link[t - 1], 1.0)
+        a = obj_inv[t - 1] @ poses[t - 1, link[t - 1]] @ x
+        b = obj_inv[t] @ poses[t, link[t - 1]] @ x
+        out[t] = float(np.linalg.norm(a[:3] - b[:3]))
+    return out
 
 
 def _static_stretches(slide: np.ndarray, a: int, b: int) -> list[tuple[int, int]]:
@@ -89,8 +109,10 @@ def _rolls(track: dict, a: int, b: int, roll: float) -> dict:
     finger_moves = on_finger >= roll or phalanx
     rolls = b - a >= 3 and ((finger_moves and on_obj < 0.5 * max(on_finger, roll)) or
                             (on_obj >= roll and on_finger < 0.5 * on_obj and not phalanx))
+    slip = float(track["slip"][a + 1:b].sum())
+    no_slip = b - a >= 3 and finger_moves and on_obj >= roll and slip < 0.5 * min(on_finger, on_obj)
     return {"start": a, "stop": b, "on_object_m": on_obj, "on_finger_m": on_finger, "phalanx_change": phalanx,
-            "rolls": bool(rolls)}
+            "slip_m": slip, "rolls": bool(rolls), "rolls_without_slip": bool(no_slip)}
 
 
 def analyse(track: dict, relocate: float, roll: float) -> dict:
@@ -99,13 +121,15 @@ def analyse(track: dict, relocate: float, roll: float) -> dict:
     for a, b in _runs(track["mask"]):
         stretches = [_rolls(track, s, e, roll) for s, e in _static_stretches(track["slide"], a, b)]
         runs.append({"start": a, "stop": b, "sliding_share": float(track["slide"][a:b].mean()),
-                     "stretches": stretches, "rolls": any(x["rolls"] for x in stretches)})
+                     "stretches": stretches, "rolls": any(x["rolls"] for x in stretches),
+                     "rolls_without_slip": any(x["rolls_without_slip"] for x in stretches)})
         if len(runs) > 1:
             gap = float(np.linalg.norm(track["p_obj"][a] - track["p_obj"][runs[-2]["stop"] - 1]))
             if gap >= relocate:
                 relocations.append({"frame": a, "distance_m": gap})
     return {"hand": track["hand"], "finger": track["finger"], "runs": runs, "relocations": relocations,
-            "relocates": bool(relocations), "rolls": any(r["rolls"] for r in runs)}
+            "relocates": bool(relocations), "rolls": any(r["rolls"] for r in runs),
+            "rolls_without_slip": any(r["rolls_without_slip"] for r in runs)}
 
 
 def plot_gaits(per_solution: list[list[dict]], tracks: list[list[dict]], path: Path) -> Path:
@@ -125,12 +149,13 @@ def plot_gaits(per_solution: list[list[dict]], tracks: list[list[dict]], path: P
                 ax.broken_barh([(run["start"], run["stop"] - run["start"])], (row - 0.35, 0.7), color="#fd8d3c")
                 for x in run["stretches"]:
                     ax.broken_barh([(x["start"], x["stop"] - x["start"])], (row - 0.35, 0.7),
-                                   color="#3182bd" if x["rolls"] else "#bdbdbd")
+                                   color="#3182bd" if x["rolls_without_slip"] else "#bdbdbd")
             for r in fa["relocations"]:
                 ax.plot(r["frame"], row, marker="v", color="#b00", ms=7)
         ax.set_yticks(range(len(fingers)), [f"{f['hand'][0]} {f['finger']}" for f in fingers], fontsize=8)
         ax.set_xlim(0, len(trk[0]["mask"]))
-        ax.set_title(f"solution {i}: grey static, orange sliding, blue rolling; red: relocation", fontsize=8)
+        ax.set_title(f"solution {i}: grey static, orange sliding, blue rolling without slipping; red: relocation",
+                     fontsize=8)
     axes[-1, 0].set_xlabel("frame")
     return save_png(fig, path, dpi=100)
 
@@ -154,9 +179,13 @@ def main(argv=None) -> int:
     for i, fingers in enumerate(per_solution):
         moves = [f["finger"] for f in fingers if f["relocates"]]
         rolls = [f["finger"] for f in fingers if f["rolls"]]
-        print(f"solution {i}: relocating: {', '.join(moves) or 'none'}; rolling: {', '.join(rolls) or 'none'}")
+        free = [f["finger"] for f in fingers if f["rolls_without_slip"]]
+        print(f"solution {i}: relocating: {', '.join(moves) or 'none'}; rolling: {', '.join(rolls) or 'none'}; "
+              f"rolling without slipping: {', '.join(free) or 'none'}")
     every = all(any(f["relocates"] for f in s) and any(f["rolls"] for f in s) for s in per_solution)
     print(f"every solution has a relocating and a rolling finger: {every}")
+    every = all(any(f["relocates"] for f in s) and any(f["rolls_without_slip"] for f in s) for s in per_solution)
+    print(f"every solution has a relocating finger and one rolling without slipping: {every}")
     if args.plot:
         print(f"wrote {plot_gaits(per_solution, tracks, args.plot)}")
     if args.json:

@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 
-# the runs: name -> (torchhand synthesize arguments after the scene's name is the first of them, mesh needed)
+# the runs: name -> (torchhand synthesize arguments, the scene's name first; mesh needed)
 RUNS = {
     "box-turn": (["box-turn"], None),
     "bunny": (["box-turn", "--object", "{bunny}", "--object-up", "y", "--object-scale", "0.4"], "bunny"),
@@ -35,6 +35,7 @@ RUNS = {
     "handle-near": (["handle-lift-palm"], None),
     "box-alternate": (["box-alternate"], None),
     "box-carry": (["box-carry"], None),
+    "cup-spin": (["cup-spin", "--strategy", "gait", "--max-nodes", "60000"], None),
 }
 # the panels: the paper's figure, what it shows, the run, the frame drawn (of solution 0)
 DEMOS = (
@@ -47,6 +48,8 @@ DEMOS = (
     ("Fig. 8", "... then by the left hand", "box-alternate", 80),
     ("Fig. 1", "a big box carried off the table ...", "box-carry", 45),
     ("Fig. 1", "... past its edge, down to the floor", "box-carry", 108),
+    ("§7", "finger gait: a cup spun, first push ...", "cup-spin", 40),
+    ("§7", "... second push (--strategy gait)", "cup-spin", 100),
 )
 WHOLE_VIEW = {"box-carry"}
 """Runs drawn from a camera framed on the whole motion (the table's edge and the floor in view), not on the frame."""
@@ -76,8 +79,8 @@ def ensure_run(name: str, results: Path, run: bool, solutions: int, max_nodes: i
     if not run:
         print(f"ye_liu_figures: {name}: no run in {out} (--run synthesizes it)", file=sys.stderr)
         return None
-    cmd = ["torchhand", "synthesize", *args, "--out", str(out), "--solutions", str(solutions), "--max-nodes",
-           str(max_nodes), "--no-progress"]
+    cmd = ["torchhand", "synthesize", args[0], "--out", str(out), "--solutions", str(solutions), "--max-nodes",
+           str(max_nodes), "--no-progress", *args[1:]]          # a run's own options (its node budget) win
     print("ye_liu_figures: " + " ".join(cmd), file=sys.stderr)
     subprocess.run(cmd, check=False)
     return out if (out / "stats.json").exists() else None

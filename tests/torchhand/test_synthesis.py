@@ -187,6 +187,68 @@ def test_a_path_completed_as_the_budget_runs_out_is_kept(box_turn_problem):
     torch.testing.assert_close(tight[0].q, free[0].q)
 
 
+def test_a_rolling_guide_touches_with_the_capsule_point_facing_its_target(box_turn_problem):
+    """A rolling guide's hand point is not fixed: wherever on the distal link it starts (the pad, or behind the
+    capsule's proximal end), the finger touches the target within ik_tol with the point of its capsule facing it
+    (on the capsule's surface), the same point from either start; held static, either start misses by > 1 cm."""
+    from torchhand.synthesis._node_kinematics import rolled_local
+
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    N, f, t = 1, 2, torch.tensor([20])
+    active = torch.zeros(N, 1, 5, dtype=torch.bool)
+    active[0, 0, f] = True
+    obj = torch.zeros(N, 1, 5, 3)
+    obj[0, 0, f] = torch.tensor([0.0, 0.0, 0.03])                    # the centre of the box's top face
+    link = hand.distal_link.expand(N, 1, 5).clone()
+    d = int(link[0, 0, f])
+    a, b, r = hand.capsule_a[d], hand.capsule_b[d], hand.capsule_radius[d]
+    ns = NodeTestSettings()
+    rolled = []
+    for start in (pad_points(hand)[f], a - r * (b - a) / (b - a).norm()):
+        local = pad_points(hand).expand(N, 1, 5, 3).clone()
+        local[0, 0, f] = start
+        static = Guides(active, link, local, obj, torch.zeros(N, 1, 5, 3))
+        rolling = Guides(active, link, local, obj, torch.zeros(N, 1, 5, 3), roll=active.clone())
+        q0 = hand.q_rest.expand(N, 1, -1).clone()
+        first = torch.ones(N, dtype=torch.bool)
+        res_s = run_node_test(p, t, q0, first, static, dynamics=False)
+        res_r = run_node_test(p, t, q0, first, rolling, dynamics=False)
+        assert float(res_s.guide_err[0, 0, f]) > 0.01
+        assert float(res_r.guide_err[0, 0, f]) <= ns.ik_tol
+        x = rolled_local(p, t, res_r.q, rolling, ns)[0, 0, f].double()
+        u = float(((x - a.double()) @ (b - a).double()) / ((b - a).double() @ (b - a).double()))
+        axis = a.double() + min(max(u, 0.0), 1.0) * (b - a).double()
+        assert abs(float((x - axis).norm()) - float(r)) < 1e-6
+        rolled.append(x)
+    assert float((rolled[0] - rolled[1]).norm()) < 1e-3
+
+
+def test_gait_strategy_retries_a_static_contact_that_failed_as_rolling(box_turn_problem):
+    """After a kinematic failure of a static finger, ``gait`` resamples it as rolling in some plans (and as static
+    or relocating in the others); ``mixed`` never proposes rolling."""
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.node_test import CAUSE_KINEMATIC, FORCE_INSIDE
+    from torchhand.synthesis.search import SearchSettings, _Node, _Search, _Tree
+
+    _, p = box_turn_problem
+    init = prune_patches(p, torch.Generator().manual_seed(0), per_finger=8)
+    ROLL, STATIC = 4, 0
+    kinds = {}
+    for strategy in ("gait", "mixed"):
+        s = _Search(p, init, SearchSettings(strategy=strategy, candidates=8), NodeTestSettings(), seed=0)
+        w = 3
+        frames = {"seed_on": torch.ones(w, 1, 5, dtype=torch.bool),
+                  "seed_class": torch.full((w, 1, 5), FORCE_INSIDE, dtype=torch.long),
+                  "seed_obj": torch.zeros(w, 1, 5, 3)}
+        node = _Node(0, w, frames, None, 1, 1)
+        node.fail = (CAUSE_KINEMATIC, [1], 0)                     # the index finger failed to keep its contact
+        node.template = [(STATIC, -1, 0)] * 5
+        tree = _Tree(0, 0)
+        kinds[strategy] = [plan[1][0] for _ in range(20) for plan in s._informed(tree, node, w)]
+    assert ROLL in kinds["gait"] and ROLL not in kinds["mixed"]
+
+
 # --- bad input ---------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("argv,needle", [

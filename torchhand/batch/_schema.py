@@ -38,7 +38,7 @@ OPTIONS = {
     "max_nodes": _Option("--max-nodes", "int", 60000, 0),
     "time_budget": _Option("--time-budget", "float", None, 0, strict=True),
     "epsilon": _Option("--epsilon", "float", 10.0, 0, strict=True),
-    "strategy": _Option("--strategy", "str", "mixed", choices=("static", "sliding", "relocating", "mixed")),
+    "strategy": _Option("--strategy", "str", "mixed", choices=("static", "sliding", "relocating", "mixed", "gait")),
     "frames": _Option("--frames", "frames", None),
     "slide_speed": _Option("--slide-speed", "float", None, 0, strict=True),
     "smooth": _Option("--smooth", "float", 0.0, 0),

@@ -136,3 +136,21 @@ def _axis_points(hand, per_link: int = 4):
     local = a[:, None] + u[None, :, None] * (b - a)[:, None]                 # (M, n, 3)
     return (links[:, None].expand(-1, per_link).reshape(-1), local.reshape(-1, 3),
             hand.capsule_radius[links][:, None].expand(-1, per_link).reshape(-1))
+
+
+def capsule_point_facing(hand, poses: torch.Tensor, link: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The point of each link's capsule that faces a world point: the capsule axis point closest to it, moved one
+    radius toward it (a rolling contact's hand point, :class:`~._node_records.Guides`).
+
+    poses: link poses (N, L, 4, 4); link: (N, M) long; target: (N, M, 3) world. Returns (N, M, 3) in each link's
+    frame; where the target lies on the axis, the axis point (the point is then undefined)."""
+    N, M = link.shape
+    T = poses.gather(1, link[..., None, None].expand(N, M, 4, 4))
+    R, p = T[..., :3, :3], T[..., :3, 3]
+    tl = (R.transpose(-1, -2) @ (target - p).unsqueeze(-1)).squeeze(-1)
+    a, b, r = hand.capsule_a[link], hand.capsule_b[link], hand.capsule_radius[link]
+    ab = b - a
+    s = (((tl - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-18)).clamp(0, 1)
+    c = a + s[..., None] * ab
+    d = tl - c
+    return c + r[..., None] * d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)

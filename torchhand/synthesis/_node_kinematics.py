@@ -10,16 +10,18 @@ import torch
 from ..hand.collision import hand_object_penetration
 from .problem import SynthesisProblem
 
-from ._node_geometry import _axis_points, _finger_depth, _rotate, _transform
+from ._node_geometry import _axis_points, _finger_depth, _rotate, _transform, capsule_point_facing
 from ._node_records import Guides, NodeTestSettings
 
 
 def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, slot_local, target, weight,
-              nail_target, nail_on, iters: int, s: NodeTestSettings) -> torch.Tensor:
+              nail_target, nail_on, iters: int, s: NodeTestSettings, roll=None) -> torch.Tensor:
     """Projected Levenberg–Marquardt on weighted point targets, the nail condition and non-penetration.
 
     root, T_obj, T_inv (N, 4, 4); q, lo, hi, anchor (N, D); slot_link (P,) long; slot_local (N, P, 3); target
-    (N, P, 3) world; weight (N, P) (0 = slot unused); nail_target (N, F, 3) outward unit normals; nail_on (N, F).
+    (N, P, 3) world; weight (N, P) (0 = slot unused); nail_target (N, F, 3) outward unit normals; nail_on (N, F);
+    roll (N, P) bool or None: slots whose hand point is re-chosen every iteration as the point of the link's capsule
+    facing the target (a rolling contact: the residual is the capsule's distance to it, ICP-like Gauss-Newton).
     Non-penetration: for points along every finger link's capsule axis, the one-sided residual
     max(0, radius + margin - sd(point)) with its SDF-gradient Jacobian.
     """
@@ -51,6 +53,9 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
     best_A = best_g = None
     for it in range(iters + 1):
+        if roll is not None:
+            facing = capsule_point_facing(hand, hand.forward_kinematics(q, root), slot_link.expand(N, P), target)
+            slot_local = torch.where(roll[..., None], facing, slot_local)
         local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
                            ax_local.expand(N, A_, 3)], 1)
         _, x, J = hand.kinematics(q, link_all, local, root)
@@ -110,6 +115,31 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     return best_q
 
 
+def guide_targets(problem: SynthesisProblem, t: torch.Tensor, obj: torch.Tensor, s: NodeTestSettings):
+    """World targets of guiding object points ``obj`` (N, F, 3, object frame) at frames t (N,), and the outward
+    surface normals there (for the nail condition, Eq. 2): the hand point aims just outside the surface, where the
+    capsules' non-penetration margin lets it be. Returns (target, normal), (N, F, 3) each."""
+    T_obj = problem.object_pose[t]
+    _, grad = problem.sdf.query_with_grad(obj)
+    n_out = _rotate(T_obj[:, None], grad / grad.norm(dim=-1, keepdim=True).clamp_min(1e-9))
+    return _transform(T_obj[:, None], obj) + s.push_margin * n_out, n_out
+
+
+def rolled_local(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, guides: Guides,
+                 s: NodeTestSettings) -> torch.Tensor:
+    """The guiding hand points as the node test used them for poses q (N, H, D) at frames t: a rolling finger's
+    is the point of its link's capsule facing its target, the others' their given point. (N, H, F, 3)."""
+    out = guides.local.clone()
+    if guides.roll is None:
+        return out
+    for h, hand in enumerate(problem.hands):
+        target, _ = guide_targets(problem, t, guides.obj[:, h], s)
+        facing = capsule_point_facing(hand, hand.forward_kinematics(q[:, h], problem.root[h, t]), guides.link[:, h],
+                                      target)
+        out[:, h] = torch.where(guides.roll[:, h, :, None], facing, out[:, h])
+    return out
+
+
 def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_prev: torch.Tensor,
                          first: torch.Tensor, guides: Guides, s: NodeTestSettings):
     """IK with penetration resolution for hand h. Returns q (N, D), link poses (N, L, 4, 4), guide error (N, F),
@@ -147,19 +177,16 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     slot_link = torch.arange(L, device=device)
     onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(dtype) * act[..., None].to(dtype)   # (N, F, L)
     g_local = torch.einsum("nfl,nfc->nlc", onehot, guides.local[:, h])
-    g_world = _transform(T_obj[:, None], guides.obj[:, h])              # (N, F, 3)
-    # nail condition (Eq. 2) against the outward normal at the target
-    _, grad = problem.sdf.query_with_grad(guides.obj[:, h])
-    n_out = _rotate(T_obj[:, None], grad / grad.norm(dim=-1, keepdim=True).clamp_min(1e-9))
-    # the hand point aims just outside the surface, where the capsules' non-penetration margin lets it be
-    g_world = g_world + s.push_margin * n_out
+    g_world, n_out = guide_targets(problem, t, guides.obj[:, h], s)     # (N, F, 3) each
     g_target = torch.einsum("nfl,nfc->nlc", onehot, g_world)
     g_weight = onehot.sum(1)                                             # (N, L)
+    roll_f = None if guides.roll is None else guides.roll[:, h] & act   # (N, F)
+    g_roll = None if roll_f is None else (onehot * roll_f[..., None].to(dtype)).sum(1) > 0       # (N, L)
 
     def solve(rows, start):
         return _lm_solve(problem, hand, root[rows], T_obj[rows], T_inv[rows], start, lo[rows], hi[rows], start,
                          slot_link, g_local[rows], g_target[rows], g_weight[rows], n_out[rows], act[rows],
-                         s.ik_iters, s)
+                         s.ik_iters, s, roll=None if g_roll is None else g_roll[rows])
 
     q = solve(slice(None), q0)
     poses = hand.forward_kinematics(q, root)
@@ -188,5 +215,8 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
         pen = type(pen)(*(a.index_copy(0, retry, b) for a, b in zip(pen, pen_r)))
     tip_link = guides.link[:, h]
     T_g = poses.gather(1, tip_link[..., None, None].expand(N, F, 4, 4))
-    err = (_transform(T_g, guides.local[:, h]) - g_world).norm(dim=-1) * act.to(dtype)
+    g_local_f = guides.local[:, h]
+    if roll_f is not None:
+        g_local_f = torch.where(roll_f[..., None], capsule_point_facing(hand, poses, tip_link, g_world), g_local_f)
+    err = (_transform(T_g, g_local_f) - g_world).norm(dim=-1) * act.to(dtype)
     return q, poses, err, pen

@@ -24,6 +24,9 @@ class Guides:
     obj:    the object point p.o, (N, H, F, 3), object frame, metres
     slide:  unit direction in which p.o moves along the surface this frame (sliding contact), (N, H, F, 3), object
             frame; zeros for a static contact
+    roll:   rolling contact, (N, H, F) bool, or None (none rolls): p.h is not fixed but is the point of its link's
+            capsule that faces p.o, re-chosen as the finger moves, so the contact moves on the finger while p.o
+            stays on the object
     """
 
     active: torch.Tensor
@@ -31,6 +34,7 @@ class Guides:
     local: torch.Tensor
     obj: torch.Tensor
     slide: torch.Tensor
+    roll: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)

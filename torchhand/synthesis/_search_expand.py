@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from ._node_kinematics import rolled_local
 from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_ZERO, Guides, contact_slots,
                         run_node_test)
 
@@ -21,7 +22,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["Candidates", "WindowOutcome", "Expansion", "expand"]
 
-_STATIC, _SLIDE, _RELOCATE, _FREE = 0, 1, 2, 3     # a finger's part in a plan: keep, slide, relocate, let go
+_STATIC, _SLIDE, _RELOCATE, _FREE, _ROLL = 0, 1, 2, 3, 4   # a finger's part in a plan: keep, slide, relocate, let
+#                                                            go, roll (keep the object point, the finger's moves)
 KEEP = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "env_force", "seed_on", "seed_link",
         "seed_local", "seed_obj", "seed_class", "seed_tdir")
 
@@ -34,7 +36,9 @@ class Candidates:
     t0: the frame each window starts at, (N,); w: window lengths, (N,); active, link, local, obj, slide: the
     guiding points per hand and finger, (N, H, F[, 3]); land: the first guided frame of a relocation, (N, H, F);
     was_on: the finger touched at the previous frame; q_prev: previous joint angles, (N, H, D); first: the window
-    starts the motion, (N,); weights: the fingers' force weights; prev_mask: the previous frame's contacts, (N, K).
+    starts the motion, (N,); weights: the fingers' force weights; prev_mask: the previous frame's contacts, (N, K);
+    roll: the finger rolls (its guiding point on the finger is re-chosen every frame as the point of its link's
+    capsule facing its object point), (N, H, F).
     """
 
     t0: torch.Tensor
@@ -50,6 +54,7 @@ class Candidates:
     first: torch.Tensor
     weights: torch.Tensor
     prev_mask: torch.Tensor
+    roll: torch.Tensor
 
 
 @dataclass(frozen=True)
@@ -108,6 +113,7 @@ def candidates(search: "_Search", jobs) -> tuple[list, Candidates]:
     weights = torch.ones(N, H, F, dtype=dtype, device=device)
     K = contact_slots(p)[0].numel()
     prev_mask = torch.zeros(N, K, dtype=torch.bool, device=device)   # hand contacts of the previous frame
+    roll = torch.zeros(N, H, F, dtype=torch.bool, device=device)
     for i, (j, node, plan, wi) in enumerate(cand):
         if node.frames is None:
             first[i] = True
@@ -116,13 +122,14 @@ def candidates(search: "_Search", jobs) -> tuple[list, Candidates]:
             was_on[i] = node.frames["seed_on"][-1]
             prev_mask[i] = node.frames["c_mask"][-1]
             zero = node.frames["seed_class"][-1] == FORCE_ZERO
-            if search.s.strategy in ("relocating", "mixed"):
+            if search.s.strategy in ("relocating", "mixed", "gait"):
                 weights[i] = torch.where(zero | ~node.frames["seed_on"][-1],
                                          torch.full_like(weights[i], search.s.free_weight), weights[i])
         for gi, (kind, sample, land_k) in enumerate(plan):
             h, f = divmod(gi, F)
-            if kind in (_STATIC, _SLIDE):
+            if kind in (_STATIC, _SLIDE, _ROLL):
                 active[i, h, f] = True
+                roll[i, h, f] = kind == _ROLL
                 link[i, h, f] = node.frames["seed_link"][-1, h, f]
                 local[i, h, f] = node.frames["seed_local"][-1, h, f]
                 obj[i, h, f] = node.frames["seed_obj"][-1, h, f]
@@ -132,7 +139,7 @@ def candidates(search: "_Search", jobs) -> tuple[list, Candidates]:
                 active[i, h, f] = True
                 obj[i, h, f] = p.surface[sample]
                 land[i, h, f] = min(land_k, wi - 1)
-    return cand, Candidates(t0=t0, w=w, active=active, link=link, local=local, obj=obj, slide=slide, land=land, was_on=was_on, q_prev=q_prev, first=first, weights=weights, prev_mask=prev_mask)
+    return cand, Candidates(t0=t0, w=w, active=active, link=link, local=local, obj=obj, slide=slide, land=land, was_on=was_on, q_prev=q_prev, first=first, weights=weights, prev_mask=prev_mask, roll=roll)
 
 
 def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
@@ -154,6 +161,8 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
     first = c.first
     weights = c.weights
     prev_mask = c.prev_mask
+    roll = c.roll
+    any_roll = bool(roll.any())
     step = search.s.slide_speed / p.fps
     alive = torch.ones(N, dtype=torch.bool, device=device)
     frames = {k: [] for k in KEEP}
@@ -179,7 +188,8 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
             obj[sel] = torch.where(moving, pnew, obj[sel])
             slide[sel] = torch.where(moving, sdir, slide[sel])
         act_k = active[sel] & (land[sel] <= k)
-        guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None])
+        guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None],
+                        roll=roll[sel] & act_k if any_roll else None)
         lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
         res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
                             weights[sel], settings=search.ns, prev_mask=prev_mask[sel])
@@ -209,6 +219,8 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
             buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=device)
             buf[sel] = full
             frames[key].append(buf)
+        if any_roll:                 # a rolling finger's guiding hand point is where the test put it this frame
+            local[sel] = rolled_local(p, t0[sel] + k, res.q, guides, search.ns)
         gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
         gl[sel] = act_k
         g_frames["guiding"].append(gl)

@@ -7,6 +7,10 @@ length. Expanding a node draws ``candidates`` guiding configurations from the co
 §4.2 (force inside the cone: static; on its boundary: static or slide along the tangential force; zero: static
 or relocate to a neighbouring point; free fingers may establish contact on their pruned patch samples) and tests
 them frame by frame; the candidates of all trees form one batch per frame (:func:`~.node_test.run_node_test`).
+The ``gait`` strategy adds rolling (§7, finger gaits): a rolling finger keeps its point on the object while its
+point on the finger follows the finger's contact from frame to frame, and a static contact that the finger
+failed to keep is retried rolling ("fingers start rolling when it becomes kinematically difficult to maintain a
+static contact").
 
 Batched reading of Algorithm 2: the ``candidates`` siblings of an expansion are tested together; the first
 feasible one in random order becomes the child (PickOneNode), the other feasible ones are kept and are the next
@@ -39,11 +43,11 @@ from .initial import InitialSamples
 from .node_test import (CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_BOUNDARY, FORCE_INSIDE, FORCE_ZERO,
                         NodeTestSettings, pad_points)
 from .problem import SynthesisProblem
-from ._search_expand import _FREE, _RELOCATE, _SLIDE, _STATIC, KEEP, expand
+from ._search_expand import _FREE, _RELOCATE, _ROLL, _SLIDE, _STATIC, KEEP, expand
 
 __all__ = ["SearchSettings", "SearchStats", "Solution", "search", "STRATEGIES"]
 
-STRATEGIES = ("static", "sliding", "relocating", "mixed")
+STRATEGIES = ("static", "sliding", "relocating", "mixed", "gait")
 
 
 @dataclass(frozen=True)
@@ -232,6 +236,7 @@ class _Search:
         for the first third of the window."""
         t0 = node.t1
         plan = []
+        pref_gait = self.s.strategy == "gait"
         for h in range(self.H):
             for f in range(self.F):
                 gi = h * self.F + f
@@ -240,7 +245,10 @@ class _Search:
                     continue
                 kind = self._choices(tree, node, h, f)
                 informed = gi in (resample or ()) and node.template is not None
-                if informed and node.template[gi][0] == kind and kind == _STATIC and _rand(tree.gen) < 0.7:
+                if informed and pref_gait and node.template[gi][0] in (_STATIC, _ROLL) and kind != _FREE and \
+                        _rand(tree.gen) < 0.5:
+                    kind = _ROLL if node.template[gi][0] == _STATIC else _RELOCATE   # hard to hold: roll on it
+                elif informed and node.template[gi][0] == kind and kind == _STATIC and _rand(tree.gen) < 0.7:
                     kind = _RELOCATE if node.frames is not None and bool(node.frames["seed_on"][-1, h, f]) else _FREE
                 if informed and kind == _RELOCATE and _rand(tree.gen) < 0.5:
                     kind = _FREE                       # a finger that failed to hold on: let it go
@@ -275,7 +283,7 @@ class _Search:
                 idle = not on or int(node.frames["seed_class"][-1, h, f]) == FORCE_ZERO
                 if gi in failed or idle:
                     plan.append((_FREE, -1, 0))
-                elif node.template is not None and node.template[gi][0] in (_STATIC, _SLIDE):
+                elif node.template is not None and node.template[gi][0] in (_STATIC, _SLIDE, _ROLL):
                     plan.append(node.template[gi])
                 else:
                     plan.append((_STATIC, -1, 0))
