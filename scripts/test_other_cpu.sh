@@ -20,8 +20,15 @@ TESTS=(
   tests/torchhand/test_mount.py tests/render/test_render.py
 )
 echo "test_other_cpu: $OTHER_CPU"
+# the files spread over TORCHHAND_TEST_WORKERS processes as in scripts/test.sh
+WORKERS=${TORCHHAND_TEST_WORKERS:-2}
+PARALLEL=()
+if [ "$WORKERS" -gt 1 ] && "$PY" -c "import xdist" >/dev/null 2>&1; then
+  PARALLEL=(-n "$WORKERS" --dist loadfile)
+  export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+fi
 # The ManipNet mug's expected failure (issue of grid normals, minutes of search) is left to the main run.
-env $OTHER_CPU "$PY" -m pytest -q -p no:cacheprovider "${TESTS[@]}" \
+env $OTHER_CPU "$PY" -m pytest -q -p no:cacheprovider "${PARALLEL[@]}" "${TESTS[@]}" \
   --deselect tests/torchhand/test_synthesis.py::test_manipnet_mug_segment_yields_checked_solutions "$@"
 rc=$?
 if [ "$rc" -eq 5 ]; then
