@@ -22,6 +22,7 @@ from ._common import Progress, add_threads_argument, apply_threads
 
 def register(sub: argparse._SubParsersAction) -> None:
     from ..synthesis import DEFAULT_MAX_NODES
+    from ..synthesis.search import STRATEGIES
 
     p = sub.add_parser("synthesize", help="find diverse, physically plausible finger motions for a scene",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same run (default 0)")
     p.add_argument("--epsilon", type=float, default=10.0,
                    help="expected number of search nodes per path; windows are T/epsilon frames (default 10)")
-    p.add_argument("--strategy", default="mixed", choices=["static", "sliding", "relocating", "mixed", "gait"],
+    p.add_argument("--strategy", default="mixed", choices=list(STRATEGIES),
                    help="manipulation-strategy preference (default mixed)")
     p.add_argument("--frames", metavar="A:B", help="synthesize frames A <= t < B of the scene only")
     p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH",

@@ -8,7 +8,7 @@ length. Expanding a node draws ``candidates`` guiding configurations from the co
 or relocate to a neighbouring point; free fingers may establish contact on their pruned patch samples) and tests
 them frame by frame; the candidates of all trees form one batch per frame (:func:`~.node_test.run_node_test`).
 The ``gait`` strategy adds rolling (§7, finger gaits): a rolling finger keeps its point on the object while its
-point on the finger follows the finger's contact from frame to frame, and a static contact that the finger
+point on the finger is re-chosen as the point of its capsule facing it, and a static contact that the finger
 failed to keep is retried rolling ("fingers start rolling when it becomes kinematically difficult to maintain a
 static contact").
 
