@@ -97,6 +97,21 @@ def test_option_tables_are_the_commands_flags_with_their_defaults(method, table)
         assert (flag in flags) == (flag in RUN_FLAGS[method]), (method, flag)
 
 
+def test_synthesize_options_with_choices_offer_the_commands_choices():
+    """A manifest's synthesize options that take one of a list (``strategy``, ``dtype``, ...) offer exactly what
+    ``torchhand synthesize`` accepts, so a new strategy is noticed here."""
+    from torchhand.batch.manifest import OPTIONS
+    from torchhand.cli import synthesize_cmd
+
+    sub = argparse.ArgumentParser().add_subparsers()
+    synthesize_cmd.register(sub)
+    flags = {s: a for a in sub.choices["synthesize"]._actions for s in a.option_strings}
+    with_choices = [spec for spec in OPTIONS.values() if spec.choices]
+    assert any(spec.flag == "--strategy" for spec in with_choices)
+    for spec in with_choices:
+        assert tuple(flags[spec.flag].choices) == spec.choices, spec.flag
+
+
 def test_a_jobs_command_line_parses_back_to_its_options(tmp_path, pinch):
     m = load_manifest(_write(tmp_path / "m.toml", MANIPULATE + "window = 5\nno_objective = true\n"))
     (job,) = m.jobs

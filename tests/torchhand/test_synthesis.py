@@ -249,6 +249,29 @@ def test_gait_strategy_retries_a_static_contact_that_failed_as_rolling(box_turn_
     assert ROLL in kinds["gait"] and ROLL not in kinds["mixed"]
 
 
+def test_gait_strategy_keeps_a_contact_on_its_cone_boundary_static_where_mixed_slides_it(box_turn_problem):
+    """§7's paper cup: under ``gait`` a loaded finger whose force lies on its friction cone's boundary is kept
+    static (it may roll later, never slide); ``mixed`` slides such a finger in about half its plans."""
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.node_test import FORCE_BOUNDARY
+    from torchhand.synthesis.search import SearchSettings, _Node, _Search, _Tree
+
+    _, p = box_turn_problem
+    init = prune_patches(p, torch.Generator().manual_seed(0), per_finger=8)
+    SLIDE, STATIC = 1, 0
+    w = 3
+    frames = {"seed_on": torch.ones(w, 1, 5, dtype=torch.bool),
+              "seed_class": torch.full((w, 1, 5), FORCE_BOUNDARY, dtype=torch.long),
+              "seed_obj": torch.zeros(w, 1, 5, 3), "seed_tdir": torch.zeros(w, 1, 5, 3)}
+    kinds = {}
+    for strategy in ("gait", "mixed"):
+        s = _Search(p, init, SearchSettings(strategy=strategy), NodeTestSettings(), seed=0)
+        tree = _Tree(0, 0)
+        kinds[strategy] = [kind for _ in range(40) for kind, _, _ in s._plan(tree, _Node(0, w, frames, None, 1, 1), w)]
+    assert set(kinds["gait"]) == {STATIC}
+    assert 0.3 < kinds["mixed"].count(SLIDE) / len(kinds["mixed"]) < 0.7
+
+
 # --- bad input ---------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("argv,needle", [

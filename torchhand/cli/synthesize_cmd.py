@@ -43,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epsilon", type=float, default=10.0,
                    help="expected number of search nodes per path; windows are T/epsilon frames (default 10)")
     p.add_argument("--strategy", default="mixed", choices=list(STRATEGIES),
-                   help="manipulation-strategy preference (default mixed)")
+                   help="manipulation-strategy preference (default mixed; gait: loaded fingers hold or roll, never "
+                        "slide, free ones relocate: finger gaits, docs/synthesis.md)")
     p.add_argument("--frames", metavar="A:B", help="synthesize frames A <= t < B of the scene only")
     p.add_argument("--hand", action="append", default=[], metavar="SIDE=PATH",
                    help="use this MJCF (.xml) or URDF (.urdf) hand for SIDE instead of the scene's (right=..., "

@@ -10,7 +10,8 @@ them frame by frame; the candidates of all trees form one batch per frame (:func
 The ``gait`` strategy adds rolling (§7, finger gaits): a rolling finger keeps its point on the object while its
 point on the finger is re-chosen as the point of its capsule facing it, and a static contact that the finger
 failed to keep is retried rolling ("fingers start rolling when it becomes kinematically difficult to maintain a
-static contact").
+static contact"); a loaded finger never slides ("for the contacting fingers, rolling becomes the only feasible
+strategy"): a force on its cone's boundary keeps it static, so a turn beyond a finger's range needs relocation.
 
 Batched reading of Algorithm 2: the ``candidates`` siblings of an expansion are tested together; the first
 feasible one in random order becomes the child (PickOneNode), the other feasible ones are kept and are the next
@@ -209,6 +210,8 @@ class _Search:
             return _SLIDE if alt == _SLIDE else (_STATIC if _rand(g) < 0.5 else _RELOCATE)
         if pref == "relocating":
             return _RELOCATE if alt == _RELOCATE else (_STATIC if _rand(g) < 0.5 else _SLIDE)
+        if pref == "gait":           # §7's paper cup: a loaded finger holds on (and rolls where it cannot), never
+            return _STATIC if alt == _SLIDE else (_RELOCATE if _rand(g) < 0.5 else _STATIC)   # slides
         return alt if _rand(g) < 0.5 else _STATIC
 
     def _new_point(self, tree: _Tree, t: int, h: int, f: int, near=None, away=None) -> int:

@@ -371,7 +371,7 @@ _CUP_SPIN = ("A light paper-cup-like cylinder (radius 2 cm, height 9 cm, 0.03 kg
              "is spun 120 degrees about its axis under a still right hand gripping its top from above, in two pushes "
              "of 60 degrees with a rest between (140 frames): more than the thumb's reach, so contacts must relocate, "
              "which they can while the cup rests on the table (Ye & Liu's finger gaits). With --strategy gait: three "
-             "checked solutions in 52347 node tests (docs/synthesis.md, 'Finger gaits').")
+             "checked solutions in 54162 node tests (docs/synthesis.md, 'Finger gaits').")
 CUP_SPIN_PUSHES = ((14, 60), (72, 118))
 """cup-spin's two pushes, (first, last) frame of each 60 degree turn; the cup rests on the table between them."""
 
