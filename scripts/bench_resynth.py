@@ -4,19 +4,25 @@
 
 INFERRED_DIR is the output of ``torchhand capture from-result`` (its ``interaction.npz`` and ``scene/``), e.g. the
 ``inferred`` folder that ``scripts/demo_inferred.py`` writes. Each row runs ``resynthesize`` on that interaction and
-scene (Lemke, float64, one rollout) and reports the median of the per-step times over ``--repeats`` runs:
+scene (Lemke, float64, one rollout) and reports the median of the per-step times over ``--repeats`` runs, the rows
+interleaved (each repeat runs every row once):
 
 - the default: link capsules against the exact mesh, finger-finger contact slots;
+- the same with Lemke's method from scratch every step (the reference for the warm start, in the same run);
 - the exact mesh without finger-finger slots;
 - the paper's set-up: an SDF grid (1 mm) and no finger-finger slots.
 
-Real time at 120 Hz is <= 8.3 ms per step.
+Real time at 120 Hz is <= 8.3 ms per step. ``--breakdown`` profiles one more run of each row and prints where a
+step's time goes (cumulative milliseconds per step of the stages in ``STAGES``; profiling adds its own overhead).
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import importlib
 import os
+import pstats
 import statistics
 import sys
 
@@ -29,8 +35,32 @@ from torchhand.interaction.resynth import ResynthSettings, load_interaction, res
 from torchhand.scene import load_scene  # noqa: E402
 
 CASES = (("exact mesh + finger-finger slots (default)", {}),
+         ("the same, Lemke from scratch every step (reference)", {"lemke_warm": False}),
          ("exact mesh, no finger-finger slots", {"self_contacts": False}),
          ("SDF 1 mm, no finger-finger slots", {"object_contacts": "sdf", "self_contacts": False}))
+# where a step's time goes (--breakdown): cumulative time of these functions, per step
+STAGES = (("contact search (step 9)", "torchhand.interaction.step", "_find_slots"),
+          ("  of it: finger-finger pairs", "torchhand.interaction._contacts", "_self_slots"),
+          ("  of it: capsules vs the exact mesh", "torchhand.interaction._contacts", "_object_capsules"),
+          ("G, U_phi, s' (steps 2-7)", "torchhand.interaction._step_lcp", "step_terms"),
+          ("LCP assembly", "torchhand.interaction._step_lcp", "compact_problem"),
+          ("LCP solve", "torchhand.interaction.step", "_solve"),
+          ("  of it: Lemke's pivoting", "torchhand.solvers._lemke", "lemke"),
+          ("  of it: warm start", "torchhand.interaction.step", "_warm"),
+          ("integration (step 8)", "torchhand.interaction.step", "_advance"))
+
+
+def breakdown(run, steps: int) -> dict:
+    """Cumulative milliseconds per step of each stage of ``STAGES`` in one profiled ``run()``."""
+    prof = cProfile.Profile()
+    prof.runcall(run)
+    st = pstats.Stats(prof).stats
+    out = {}
+    for stage, module, fn in STAGES:
+        path = importlib.import_module(module).__file__
+        cum = sum(v[3] for (file, _, name), v in st.items() if name == fn and os.path.samefile(file, path))
+        out[stage] = 1e3 * cum / steps
+    return out
 
 
 def main(argv=None) -> int:
@@ -39,23 +69,34 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", help="write the results here (atomically)")
+    p.add_argument("--breakdown", action="store_true", help="print where a step's time goes, per row")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     inter = load_interaction(os.path.join(a.inferred, "interaction.npz"))
     scene = load_scene(os.path.join(a.inferred, "scene"))
     rows = []
+    times = {name: [] for name, _ in CASES}
+    last = {}
+    for _ in range(a.repeats):         # the rows interleaved, so that a busy spell of the machine hits them all
+        for name, options in CASES:
+            last[name] = resynthesize(inter, scene, settings=ResynthSettings(**options))
+            times[name].append(last[name].timings["per_step_ms"])
     for name, options in CASES:
-        times, res = [], None
-        for _ in range(a.repeats):
-            res = resynthesize(inter, scene, settings=ResynthSettings(**options))
-            times.append(res.timings["per_step_ms"])
-        r = res.rollouts[0]
-        rows.append({"contacts": name, "steps": int(r.q.shape[0]), "ms_per_step": statistics.median(times),
-                     "spread_ms": max(times) - min(times), "x_real_time_120hz": (1e3 / 120) / statistics.median(times),
-                     "status": r.status.name})
+        times_, r = times[name], last[name].rollouts[0]
+        rows.append({"contacts": name, "steps": int(r.q.shape[0]), "ms_per_step": statistics.median(times_),
+                     "spread_ms": max(times_) - min(times_),
+                     "x_real_time_120hz": (1e3 / 120) / statistics.median(times_), "status": r.status.name})
+        if a.breakdown:
+            rows[-1]["stages_ms"] = breakdown(lambda: resynthesize(inter, scene, settings=ResynthSettings(**options)),
+                                              int(r.q.shape[0]))
     info = machine()
     print(f"machine: {info}")
     print_table(rows, ["contacts", "steps", "ms_per_step", "spread_ms", "x_real_time_120hz", "status"])
+    for row in rows:
+        if "stages_ms" in row:
+            print(f"\n{row['contacts']}: ms per step (profiled)")
+            for stage, ms in row["stages_ms"].items():
+                print(f"  {stage:<40} {ms:8.2f}")
     if a.json:
         write_json(a.json, {"machine": info, "command": " ".join(sys.argv), "rows": rows})
     return 0

@@ -56,13 +56,14 @@ def pinch_reference(fps: float = 120.0, squeeze: float = 0.25, lift: float = 0.0
     return theta_r, root, round(0.4 * fps)
 
 
-def run_pinch(masses, grip: str = "none", fps: float = 120.0, solver: str = "lemke", **reference):
+def run_pinch(masses, grip: str = "none", fps: float = 120.0, solver: str = "lemke", lemke_warm: bool = True,
+              **reference):
     """B pinch rollouts on the 4 x 4 x 6 cm box resting on the table at z = 0. Returns (record, lift frame)."""
     B = len(masses)
     theta_r, root, start = pinch_reference(fps, **reference)
     T = theta_r.shape[0]
     hand = hand_from_mjcf(pinch_xml())
-    settings = StepSettings(h=1 / fps, solver=solver, geometry="capsules", pgs_max_iters=50)
+    settings = StepSettings(h=1 / fps, solver=solver, geometry="capsules", pgs_max_iters=50, lemke_warm=lemke_warm)
     th = torch.from_numpy(theta_r).expand(B, T, 4).contiguous()
     rr = torch.from_numpy(root).expand(B, T, 4, 4).contiguous()
     C = torch.tensor(C_PINCH, dtype=F64).expand(B, T, 10).contiguous()
@@ -261,26 +262,43 @@ def test_load_interaction_roundtrip(tmp_path):
     assert inter.source == "constructed" and inter.C.shape == (inter.T, 10) and inter.root_origin.shape == (4, 4)
 
 
-def test_unsolved_lcp_stops_only_that_rollout(tmp_path, monkeypatch, capsys):
-    """A Lemke failure at step 5 of rollout 1 stops rollout 1 there; rollout 0 completes. When every rollout fails
-    the command exits 1 and stats.json names the step."""
-    import torchhand.solvers.lcp as lcp_module              # the step solves through torchhand.solvers.lcp.solve
-    from torchhand.cli import main
-
-    real = lcp_module.lemke
+def _failing_at(real, call: int):
+    """Lemke that reports its ``call``-th problem unsolved (a ray)."""
     calls = {"n": 0}
 
     def failing(M, q, **kw):
         out = real(M, q, **kw)
         calls["n"] += 1
-        if calls["n"] == 2 * 5 + 2:                          # step 5, rollout 1 (one call per rollout and step)
-            return out._replace(status=SolverStatus.UNBOUNDED)
-        return out
+        return out._replace(status=SolverStatus.UNBOUNDED) if calls["n"] == call else out
+    return failing
 
-    monkeypatch.setattr(lcp_module, "lemke", failing)
-    rec, _ = run_pinch([0.05, 0.05], duration=0.2)
+
+def test_a_lemke_failure_is_solved_from_pgs_sweeps(monkeypatch):
+    """Lemke's method is not complete for the step's LCP: where its run ends without a solution, the support of a
+    few PGS sweeps is solved exactly and verified, and the rollout goes on as if Lemke had solved that step."""
+    import torchhand.solvers.lcp as lcp_module
+
+    ref, _ = run_pinch([0.05, 0.05], duration=0.2, lemke_warm=False)
+    monkeypatch.setattr(lcp_module, "lemke", _failing_at(lcp_module.lemke, 2 * 5 + 2))   # step 5, rollout 1
+    rec, _ = run_pinch([0.05, 0.05], duration=0.2, lemke_warm=False)
+    assert rec["failed_step"].tolist() == [-1, -1]
+    np.testing.assert_allclose(rec["object_pose"].numpy(), ref["object_pose"].numpy(), atol=1e-6)
+
+
+def test_unsolved_lcp_stops_only_that_rollout(tmp_path, monkeypatch, capsys):
+    """An LCP that neither Lemke nor the PGS support solves, at step 5 of rollout 1, stops rollout 1 there;
+    rollout 0 completes. When every rollout fails the command exits 1 and stats.json names the step."""
+    import torchhand.interaction.step as step_module
+    import torchhand.solvers.lcp as lcp_module              # the step solves through torchhand.solvers.lcp.solve
+    from torchhand.cli import main
+
+    real = lcp_module.lemke
+    monkeypatch.setattr(step_module, "_from_pgs", lambda *a, **k: None)
+    monkeypatch.setattr(lcp_module, "lemke", _failing_at(real, 2 * 5 + 2))   # one call per rollout and step
+    rec, _ = run_pinch([0.05, 0.05], duration=0.2, lemke_warm=False)
     assert rec["failed_step"].tolist() == [-1, 5]
 
+    monkeypatch.setattr(step_module, "_warm", lambda *a, **k: None)          # no support solves any step
     monkeypatch.setattr(lcp_module, "lemke", lambda M, q, **kw: real(M, q, **kw)._replace(
         status=SolverStatus.UNBOUNDED))
     scene_dir, inter = pinch_files(tmp_path / "in")

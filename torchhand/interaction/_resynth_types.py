@@ -65,7 +65,8 @@ class ResynthSettings:
     distance grid of ``sdf_voxel`` metres, 1 mm by default, with the grid's trilinear normals: about 20 % cheaper per
     step on the demo's box, but blended normals within a voxel of an edge); self_contacts: finger-finger contact slots
     in the step (frictionless; :mod:`._contacts`), so that a finger closing further on a smaller object stops on its
-    neighbour instead of passing through it
+    neighbour instead of passing through it; lemke_warm: Lemke starts from the previous step's support
+    (:class:`~torchhand.interaction.step.StepSettings`)
     """
 
     dt: float | None = None
@@ -81,6 +82,7 @@ class ResynthSettings:
     object_contacts: str = "mesh"
     sdf_voxel: float = 0.001
     self_contacts: bool = True
+    lemke_warm: bool = True
 
     def __post_init__(self):
         if self.dt is not None and not self.dt > 0:

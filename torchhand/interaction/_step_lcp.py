@@ -103,8 +103,9 @@ class SlotSolution:
 
 
 def _rigid_terms(state: StepState, obj: StepObject, c: Contacts, S3: torch.Tensor, on_body: torch.Tensor,
-                 settings: StepSettings):
-    """Step 6 with an object: (:class:`RigidTerms`, signed U_phi, signed u_phi, its friction (B, 1))."""
+                 settings: StepSettings, act: tuple):
+    """Step 6 with an object: (:class:`RigidTerms`, signed U_phi, signed u_phi, its friction (B, 1)); U_phi and
+    u_phi are computed on the active slots ``act`` (:func:`_active`) and scattered to all N."""
     B = state.q.shape[0]
     like = state.q
     E_wb = obj.body_frame(state.object_pose)
@@ -112,7 +113,10 @@ def _rigid_terms(state: StepState, obj: StepObject, c: Contacts, S3: torch.Tenso
     g = torch.tensor(settings.gravity, dtype=like.dtype, device=like.device)
     mass = obj.mass_per_rollout(B, like)
     w_ext = torch.cat([like.new_zeros(B, 3), mass[:, None] * (E_wb[:, :3, :3].transpose(1, 2) @ g)], -1)
-    U, u = rigid_body_terms(E_wb, state.phi, Mb, c.points, settings.h, w_ext, on_body)
+    order, idx = act
+    U, u = rigid_body_terms(E_wb, state.phi, Mb, c.points.gather(1, order[..., None].expand(-1, -1, 3)), settings.h,
+                            w_ext, on_body.gather(1, order))
+    U, u = _scatter_blocks(U, idx, 3 * c.mask.shape[1]), like.new_zeros(B, 3 * c.mask.shape[1]).scatter(1, idx, u)
     # hand-object slots: the object receives -f (the paper's U_phi, u_phi); object-plane slots: +f
     U = U * S3[:, None] * S3[None, :]
     u = -u * S3
@@ -134,10 +138,13 @@ def step_terms(state: StepState, theta_r_next: torch.Tensor, root_r_next: torch.
     S3 = sign.repeat_interleave(3)
     dth = torch.cat([root_displacement(root_r_next, state.root_r), theta_r_next - state.theta_r], -1)
     dth = dth + state.theta_err
-    G = effective_compliance(c.J, C, c.mask)
+    act = _active(c.mask)        # G and U_phi vanish outside the active slots: computed there only
+    order, idx = act
+    G_act = effective_compliance(c.J.gather(1, idx[..., None].expand(-1, -1, c.J.shape[2])), C, c.mask.gather(1, order))
+    G = _scatter_blocks(G_act, idx, 3 * N)
     Dfull = friction_pyramid(c.d0, settings.pyramid_m)
     if obj is not None:
-        rigid, U, u, mu_obj = _rigid_terms(state, obj, c, S3, on_body, settings)
+        rigid, U, u, mu_obj = _rigid_terms(state, obj, c, S3, on_body, settings, act)
     else:
         rigid = None
         U, u = torch.zeros_like(G), like.new_zeros(B, 3 * N)
@@ -148,6 +155,21 @@ def step_terms(state: StepState, theta_r_next: torch.Tensor, root_r_next: torch.
     fk = state.forces.reshape(B, 3 * N)
     sp = kry_pai_s_prime(Dfull, c.separation, G=G, f_k=fk, J=c.J, dtheta_r=dth, u_phi=u)
     return StepTerms(c, on_tab, on_body, sign, dth, G, Dfull, U, u, mu, fk, sp, rigid)
+
+
+def _active(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The active slots first (:func:`_compact`'s order, (B, Na)) and their 3 Na rows, (B, 3 Na)."""
+    order = _compact(mask)[0]
+    idx = (order[..., None] * 3 + torch.arange(3, device=order.device)).reshape(order.shape[0], -1)
+    return order, idx
+
+
+def _scatter_blocks(X: torch.Tensor, idx: torch.Tensor, n3: int) -> torch.Tensor:
+    """X (B, 3 Na, 3 Na) on the rows and columns ``idx`` (B, 3 Na) of a zero (B, n3, n3): :func:`_gather_blocks`
+    undone (the indices are distinct, so nothing is summed)."""
+    B, m = idx.shape
+    rows = X.new_zeros(B, m, n3).scatter(2, idx[:, None, :].expand(-1, m, -1), X)
+    return X.new_zeros(B, n3, n3).scatter(1, idx[:, :, None].expand(-1, -1, n3), rows)
 
 
 def _compact(mask: torch.Tensor):

@@ -149,7 +149,8 @@ def _step_settings(settings: ResynthSettings, scene, h: float, B: int) -> StepSe
     solver = settings.solver or ("lemke" if B == 1 and settings.dtype == torch.float64 else "auto")
     return StepSettings(h=h, pyramid_m=settings.pyramid_m, margin=settings.margin, solver=solver,
                         gravity=tuple(float(x) for x in scene.gravity), geometry="capsules",
-                        pgs_max_iters=settings.pgs_max_iters, self_contacts=settings.self_contacts)
+                        pgs_max_iters=settings.pgs_max_iters, self_contacts=settings.self_contacts,
+                        lemke_warm=settings.lemke_warm)
 
 
 def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: ResynthSettings = ResynthSettings(),

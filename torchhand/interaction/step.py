@@ -15,7 +15,8 @@ step k + 1 given the next reference (theta_r^{k+1}, root reference), the complia
 6. U_phi, u_phi of the free object (body frame at its centre of mass with the object's axes, M = diag(I_com, m I3),
    gravity w_ext = (0, m Theta^T g)); plane slots have U_phi = u_phi = 0;
 7. s' = s + D^T (J (dtheta_r + theta_err) - G f^k - u_phi) and the LCP of §7.1.3, solved per rollout by Lemke's
-   method (``solver="lemke"``, exact, one problem at a time on the CPU) or by the batched projected Gauss-Seidel
+   method (``solver="lemke"``, exact, one problem at a time on the CPU, first tried from the previous step's
+   support: ``StepSettings.lemke_warm``) or by the batched projected Gauss-Seidel
    of :func:`torchhand.kernels.contact_lcp.solve_contact_lcp` (``"pgs"``; ``"auto"`` re-solves the rollouts PGS
    leaves unconverged with Lemke); only the active slots enter the problem;
 8. f^{k+1} = D beta; phi^{k+1}, E^{k+1} = E^k exp(h phi^{k+1}^) (exact SE(3) exponential of the body twist);
@@ -51,13 +52,15 @@ Batched variants: :class:`StepObject` may carry one mass and one hand-object fri
 LCP.
 
 Layout: the types are in :mod:`._step_types`, steps 2-7 and the slacks of the solution in :mod:`._step_lcp`, the
-root coordinates in :mod:`._root_coords`; this module holds the driver, the LCP solve of step 7 and steps 8-9.
+root coordinates in :mod:`._root_coords`, the LCP's warm start from the previous step's support in
+:mod:`._warm_lcp`; this module holds the driver, the LCP solve of step 7 and steps 8-9.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 
 from torchhand.kernels.contact_lcp import integrate_object, solve_contact_lcp
@@ -70,6 +73,7 @@ from ._contacts import Contacts, TablePlane, find_contacts, self_pairs
 from ._root_coords import displace_root, root_displacement
 from ._step_lcp import SlotSolution, StepTerms, compact_problem, expand_solution, predicted_motion, step_terms
 from ._step_types import SOLVERS, StepObject, StepReport, StepSettings, StepState
+from ._warm_lcp import solve_from_support, support_guess
 
 __all__ = ["StepObject", "StepSettings", "StepState", "StepReport", "TablePlane", "Contacts", "initial_state",
            "quasi_static_step", "root_displacement", "displace_root", "SOLVERS"]
@@ -141,6 +145,25 @@ def _check_step_inputs(state: StepState, theta_r_next: torch.Tensor, root_r_next
         raise InputValueError(f"state.beta has {state.beta.shape[-1]} directions; settings.pyramid_m gives {K}")
 
 
+def _warm(M: torch.Tensor, q: torch.Tensor, beta_prev: torch.Tensor, mu: torch.Tensor, settings: StepSettings,
+          rel: float = 1e-9):
+    """(z, ||min(z, w)||_inf) of the LCP from the previous step's support (:mod:`._warm_lcp`), or None."""
+    na, K = beta_prev.shape
+    if na == 0:
+        return None
+    on, sliding = support_guess(beta_prev.detach().cpu().double().numpy(), mu.detach().cpu().double().numpy(), rel)
+    z = solve_from_support(M.numpy(), q.numpy(), na, K, on, sliding, settings.lemke_tol)
+    return None if z is None else (z, float(np.abs(np.minimum(z, M.numpy() @ z + q.numpy())).max()))
+
+
+def _from_pgs(lcp, b: int, M: torch.Tensor, q: torch.Tensor, beta0: torch.Tensor, na: int, settings: StepSettings):
+    """(z, residual) of rollout b's LCP from the support of ``settings.pgs_max_iters`` (default 200) projected
+    Gauss-Seidel sweeps, verified to ``lemke_tol`` (:mod:`._warm_lcp`), or None."""
+    one = type(lcp)(*(t[b:b + 1] for t in lcp))
+    out = solve_contact_lcp(one, beta0=beta0[b:b + 1], max_iters=settings.pgs_max_iters or 200)
+    return _warm(M, q, out.beta[0, :na], lcp.mu[b, :na], settings, rel=1e-6)
+
+
 def _solve(lcp, mask_c: torch.Tensor, beta0: torch.Tensor, settings: StepSettings):
     """beta (B, Na, K), status, residual, iterations over the compact problem."""
     D = lcp.D
@@ -162,9 +185,20 @@ def _solve(lcp, mask_c: torch.Tensor, beta0: torch.Tensor, settings: StepSetting
             na = int(counts[b])
             # active slots come first: the LCP of the active contacts is the leading block (beta rows, then lambda)
             rows = torch.cat([torch.arange(na * K), Na * K + torch.arange(na)])
-            out = lcp_solvers.solve(Mc[b][rows][:, rows], qc[b][rows], backend="lemke", tol=settings.lemke_tol,
-                                   restarts=settings.lemke_restarts)
+            Mb, qb = Mc[b][rows][:, rows], qc[b][rows]
+            z = _warm(Mb, qb, beta0[b, :na], lcp.mu[b, :na], settings) if settings.lemke_warm else None
             beta[b] = 0
+            if z is not None:        # the previous step's support solves it: no pivoting
+                beta[b, :na] = torch.from_numpy(z[0][: na * K]).reshape(na, K).to(beta)
+                status[b], residual[b], iters[b] = int(SolverStatus.CONVERGED), z[1], 0
+                continue
+            out = lcp_solvers.solve(Mb, qb, backend="lemke", tol=settings.lemke_tol, restarts=settings.lemke_restarts)
+            if out.status != SolverStatus.CONVERGED:
+                z = _from_pgs(lcp, b, Mb, qb, beta0, na, settings)
+                if z is not None:    # Lemke's path did not end; the support of a few PGS sweeps solves it
+                    beta[b, :na] = torch.from_numpy(z[0][: na * K]).reshape(na, K).to(beta)
+                    status[b], residual[b], iters[b] = int(SolverStatus.CONVERGED), z[1], out.pivots
+                    continue
             beta[b, :na] = torch.from_numpy(out.x[: na * K]).reshape(na, K).to(beta)
             status[b], residual[b], iters[b] = int(out.status), out.residual, out.pivots
     return beta, status.to(D.device), residual.to(D.device), iters.to(D.device)
