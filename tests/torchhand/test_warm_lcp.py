@@ -78,8 +78,8 @@ def test_the_guess_reads_sliding_from_a_force_on_the_cone():
 
 def test_pinch_with_and_without_the_warm_start_moves_the_same():
     """A whole pinch-and-lift rollout: the warm start solves most steps without pivoting, and the motion is the
-    one of a rollout that pivots every step, within 0.1 mm and 1e-4 rad (measured 0.03 mm, 1e-6 rad: where the
-    step's forces are not unique the two answers may differ within the LCP's tolerance)."""
+    one of a rollout that pivots every step to round-off (a warm answer is accepted only at round-off level, so
+    where the step's forces are not unique it is Lemke's answer or none)."""
     from torchhand.interaction import step as step_module
 
     from .test_resynth import run_pinch
@@ -101,5 +101,5 @@ def test_pinch_with_and_without_the_warm_start_moves_the_same():
         step_module.lcp_solvers.solve = orig
     assert int(warm["failed_step"][0]) == -1 and (warm["status"] == int(SolverStatus.CONVERGED)).all()
     assert n_warm < 0.5 * n_cold, (n_warm, n_cold)
-    np.testing.assert_allclose(warm["object_pose"][0].numpy(), cold["object_pose"][0].numpy(), atol=1e-4)
-    np.testing.assert_allclose(warm["q"][0].numpy(), cold["q"][0].numpy(), atol=1e-4)
+    np.testing.assert_allclose(warm["object_pose"][0].numpy(), cold["object_pose"][0].numpy(), atol=1e-10)
+    np.testing.assert_allclose(warm["q"][0].numpy(), cold["q"][0].numpy(), atol=1e-10)

@@ -140,8 +140,8 @@ class StepSettings:
     finger-finger slots between the capsules of different fingers (:mod:`._contacts`, an extension: the paper's fingers
     pass through each other); self_mu: their friction coefficient (0: frictionless); lemke_warm: Lemke first tries the
     previous step's support (the pyramid directions that carried force, and the sliding multiplier of every contact
-    whose force was on its cone's boundary) with one dense solve, and pivots only when that does not solve the LCP to
-    ``lemke_tol`` (the contact set changes little between steps); False pivots from scratch every step. Either way a
+    whose force was on its cone's boundary) with a few dense solves, and pivots only when that does not solve the LCP
+    to round-off (the contact set changes little between steps); False pivots from scratch every step. Either way a
     Lemke run that does not end in a solution (its pivot limit, or a ray: Lemke's method is not complete for this
     LCP, whose matrix is not copositive-plus) is followed by ``pgs_max_iters`` (default 200) projected Gauss-Seidel
     sweeps whose support is solved exactly and verified to ``lemke_tol`` the same way; the step fails only if that

@@ -9,12 +9,14 @@ directions carry force change little, so the previous support usually is the new
 1. beta's support S: the directions that carried force (beta > 0); lambda_i joins S where contact i's force lay on
    its cone's boundary (sigma_i ~ 0 with a tangential direction in S and mu_i > 0: a sliding contact, whose lambda
    is coupled to its nu rows);
-2. z_S solves M_SS z_S = -q_S (one dense solve), z = 0 elsewhere;
+2. z_S solves M_SS z_S = -q_S (least squares: where the pyramid directions of S are dependent, beta is not unique
+   there), z = 0 elsewhere; a support that does not solve the LCP is corrected (:func:`solve_from_support`);
 3. every other lambda_i whose sigma_i is 0 at z (a contact without force, or a frictionless one) is the least
    value that makes its tangential nu rows >= 0 (lambda_i is not unique there: any larger value also solves the
    LCP; the least one is the contact's relative tangential motion);
-4. the answer is kept only if it solves the LCP: z >= 0, w >= 0 and ||min(z, w)||_inf <= tol (the test a pivoted
-   answer passes); otherwise the step pivots from scratch (Lemke), so the verdict never rests on the guess.
+4. the answer is kept only if it solves the LCP: z >= 0, w >= 0 and ||min(z, w)||_inf <= tol, the step's tol
+   being round-off (:data:`WARM_TOL`); otherwise the step pivots from scratch (Lemke), so the verdict never rests on
+   the guess.
 
 NumPy, float64, one problem.
 """
@@ -23,7 +25,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["support_guess", "solve_from_support"]
+__all__ = ["WARM_TOL", "support_guess", "solve_from_support"]
+
+WARM_TOL = 1e-10
+"""The step accepts a warm answer only within this tolerance relative to the LCP's largest entry: round-off, as a
+pivoted answer's re-solved basis (a support that is right solves the LCP to the last digits; a looser test would
+accept a wrong support's near-miss)."""
 
 
 def support_guess(beta: np.ndarray, mu: np.ndarray, rel: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:

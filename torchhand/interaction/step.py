@@ -73,7 +73,7 @@ from ._contacts import Contacts, TablePlane, find_contacts, self_pairs
 from ._root_coords import displace_root, root_displacement
 from ._step_lcp import SlotSolution, StepTerms, compact_problem, expand_solution, predicted_motion, step_terms
 from ._step_types import SOLVERS, StepObject, StepReport, StepSettings, StepState
-from ._warm_lcp import solve_from_support, support_guess
+from ._warm_lcp import WARM_TOL, solve_from_support, support_guess
 
 __all__ = ["StepObject", "StepSettings", "StepState", "StepReport", "TablePlane", "Contacts", "initial_state",
            "quasi_static_step", "root_displacement", "displace_root", "SOLVERS"]
@@ -147,12 +147,16 @@ def _check_step_inputs(state: StepState, theta_r_next: torch.Tensor, root_r_next
 
 def _warm(M: torch.Tensor, q: torch.Tensor, beta_prev: torch.Tensor, mu: torch.Tensor, settings: StepSettings,
           rel: float = 1e-9):
-    """(z, ||min(z, w)||_inf) of the LCP from the previous step's support (:mod:`._warm_lcp`), or None."""
+    """(z, ||min(z, w)||_inf) of the LCP from the previous step's support (:mod:`._warm_lcp`), or None. Accepted
+    only at round-off level (``WARM_TOL`` relative to the LCP's largest entry), as accurate as Lemke's re-solved
+    basis, not merely within ``lemke_tol``."""
     na, K = beta_prev.shape
     if na == 0:
         return None
     on, sliding = support_guess(beta_prev.detach().cpu().double().numpy(), mu.detach().cpu().double().numpy(), rel)
-    z = solve_from_support(M.numpy(), q.numpy(), na, K, on, sliding, settings.lemke_tol)
+    Mn, qn = M.numpy(), q.numpy()
+    tol = WARM_TOL * max(1.0, float(np.abs(Mn).max()), float(np.abs(qn).max()))
+    z = solve_from_support(Mn, qn, na, K, on, sliding, tol)
     return None if z is None else (z, float(np.abs(np.minimum(z, M.numpy() @ z + q.numpy())).max()))
 
 
