@@ -45,7 +45,7 @@ def test_length_scaling_and_fingertip_reach():
         T = hand.forward_kinematics(torch.zeros(1, 30, dtype=torch.float64))
         d = hand.distal_link[FINGER_NAMES.index("middle")]
         # Straight middle finger: the distal capsule's far end plus its radius is the hand length.
-        a, b, r = hand.capsule_a[d], hand.capsule_b[d], hand.capsule_radius[d]
+        b, r = hand.capsule_b[d], hand.capsule_radius[d]
         tip = T[0, d, :3, :3] @ b + T[0, d, :3, 3]
         assert abs(float(tip[0] + r) - length) < 1e-9
 

@@ -366,7 +366,7 @@ def test_palm_contact_is_reported_not_enforced(hand):
 
 
 def test_bad_input_names_the_argument(hand):
-    T, D = 6, hand.num_joints
+    T = 6
     root, q = wrist_track(T), hand.q_rest.repeat(T, 1)
     none = ContactTrack.empty(T)
     with pytest.raises(ShapeError, match=r"q_search: expected shape \(\*, 30\), got \(6, 29\)"):
