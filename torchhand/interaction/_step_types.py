@@ -144,8 +144,8 @@ class StepSettings:
     to round-off (the contact set changes little between steps); False pivots from scratch every step. Either way a
     Lemke run that does not end in a solution (its pivot limit, or a ray: Lemke's method is not complete for this
     LCP, whose matrix is not copositive-plus) is followed by ``pgs_max_iters`` (default 200) projected Gauss-Seidel
-    sweeps whose support is solved exactly and verified to ``lemke_tol`` the same way; the step fails only if that
-    does not solve it either
+    sweeps whose support is solved exactly and verified within ``lemke_tol``, as a pivoted answer; the step fails
+    only if that does not solve it either
     """
 
     h: float = 1.0 / 120.0

@@ -146,26 +146,26 @@ def _check_step_inputs(state: StepState, theta_r_next: torch.Tensor, root_r_next
 
 
 def _warm(M: torch.Tensor, q: torch.Tensor, beta_prev: torch.Tensor, mu: torch.Tensor, settings: StepSettings,
-          rel: float = 1e-9):
-    """(z, ||min(z, w)||_inf) of the LCP from the previous step's support (:mod:`._warm_lcp`), or None. Accepted
-    only at round-off level (``WARM_TOL`` relative to the LCP's largest entry), as accurate as Lemke's re-solved
-    basis, not merely within ``lemke_tol``."""
+          rel: float = 1e-9, tol: float = WARM_TOL):
+    """(z, ||min(z, w)||_inf) of the LCP from the support of ``beta_prev`` (:mod:`._warm_lcp`), or None. Accepted
+    within ``tol`` relative to the LCP's largest entry: by default round-off (``WARM_TOL``), as accurate as Lemke's
+    re-solved basis, so that a warm answer is Lemke's answer or none."""
     na, K = beta_prev.shape
     if na == 0:
         return None
     on, sliding = support_guess(beta_prev.detach().cpu().double().numpy(), mu.detach().cpu().double().numpy(), rel)
     Mn, qn = M.numpy(), q.numpy()
-    tol = WARM_TOL * max(1.0, float(np.abs(Mn).max()), float(np.abs(qn).max()))
-    z = solve_from_support(Mn, qn, na, K, on, sliding, tol)
+    z = solve_from_support(Mn, qn, na, K, on, sliding, tol * max(1.0, float(np.abs(Mn).max()), float(np.abs(qn).max())))
     return None if z is None else (z, float(np.abs(np.minimum(z, M.numpy() @ z + q.numpy())).max()))
 
 
 def _from_pgs(lcp, b: int, M: torch.Tensor, q: torch.Tensor, beta0: torch.Tensor, na: int, settings: StepSettings):
     """(z, residual) of rollout b's LCP from the support of ``settings.pgs_max_iters`` (default 200) projected
-    Gauss-Seidel sweeps, verified to ``lemke_tol`` (:mod:`._warm_lcp`), or None."""
+    Gauss-Seidel sweeps (:mod:`._warm_lcp`), verified within ``lemke_tol`` as a pivoted answer is (Lemke found
+    none here, so there is no answer of its to match), or None."""
     one = type(lcp)(*(t[b:b + 1] for t in lcp))
     out = solve_contact_lcp(one, beta0=beta0[b:b + 1], max_iters=settings.pgs_max_iters or 200)
-    return _warm(M, q, out.beta[0, :na], lcp.mu[b, :na], settings, rel=1e-6)
+    return _warm(M, q, out.beta[0, :na], lcp.mu[b, :na], settings, rel=1e-6, tol=settings.lemke_tol)
 
 
 def _solve(lcp, mask_c: torch.Tensor, beta0: torch.Tensor, settings: StepSettings):
