@@ -38,9 +38,11 @@ def test_the_solutions_own_support_solves_it_with_lemkes_forces():
         assert ref.status == SolverStatus.CONVERGED
         beta = ref.x[:N * K].reshape(N, K)
         on, sliding = support_guess(beta, mu[b])
-        z = solve_from_support(M[b], q[b], N, K, on, sliding, TOL, rounds=0)
-        if z is None:
+        out = solve_from_support(M[b], q[b], N, K, on, sliding, TOL, rounds=0)
+        if out is None:
             continue
+        z, residual = out
+        assert residual == _residual(M[b], q[b], z)
         solved += 1
         assert z.min() >= 0 and (M[b] @ z + q[b]).min() >= -TOL and _residual(M[b], q[b], z) <= TOL
         f, f_ref = (np.einsum("nrk,nk->nr", D[b], x[:N * K].reshape(N, K)) for x in (z, ref.x))
@@ -60,8 +62,9 @@ def test_a_wrong_support_gives_a_solution_or_nothing():
         other = lemke(M[(b + 1) % len(q)], q[(b + 1) % len(q)])
         guesses.append(support_guess(other.x[:N * K].reshape(N, K), mu[(b + 1) % len(q)]))
         for on, sliding in guesses:
-            z = solve_from_support(M[b], q[b], N, K, on, sliding, TOL)
-            if z is not None:
+            out = solve_from_support(M[b], q[b], N, K, on, sliding, TOL)
+            if out is not None:
+                z = out[0]
                 answers += 1
                 assert z.min() >= 0 and (M[b] @ z + q[b]).min() >= -TOL and _residual(M[b], q[b], z) <= TOL
     assert answers >= 3                  # some wrong guesses are corrected into a solution (6 of 64 here)

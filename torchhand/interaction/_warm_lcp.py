@@ -43,8 +43,8 @@ def support_guess(beta: np.ndarray, mu: np.ndarray, rel: float = 1e-9) -> tuple[
 
 
 def solve_from_support(M: np.ndarray, q: np.ndarray, na: int, K: int, on: np.ndarray, sliding: np.ndarray,
-                       tol: float, rounds: int = 24) -> np.ndarray | None:
-    """z (na K + na,) solving LCP(M, q) from the support (``on`` (na, K), ``sliding`` (na,)) of
+                       tol: float, rounds: int = 24) -> tuple[np.ndarray, float] | None:
+    """(z (na K + na,), ||min(z, w)||_inf) solving LCP(M, q) from the support (``on`` (na, K), ``sliding`` (na,)) of
     :func:`support_guess` (module docstring), or None where no solution is reached within ``tol`` (absolute, on
     ||min(z, w)||_inf, with w >= -tol and z >= -tol before clipping). A support that does not solve it is corrected
     up to ``rounds`` times, block-pivoting style: the variables that came out negative leave it, and per contact the
@@ -59,7 +59,8 @@ def solve_from_support(M: np.ndarray, q: np.ndarray, na: int, K: int, on: np.nda
         if not low_z.any() and not low_w.any():
             z = np.maximum(z, 0.0)
             w = M @ z + q
-            return z if w.min() >= -tol and float(np.abs(np.minimum(z, w)).max()) <= tol else None
+            residual = float(np.abs(np.minimum(z, w)).max())
+            return (z, residual) if w.min() >= -tol and residual <= tol else None
         S_next = (S & ~low_z) | _most_violated(w, low_w, na, K)
         if (S_next == S).all():
             return None

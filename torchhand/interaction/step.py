@@ -155,8 +155,8 @@ def _warm(M: torch.Tensor, q: torch.Tensor, beta_prev: torch.Tensor, mu: torch.T
         return None
     on, sliding = support_guess(beta_prev.detach().cpu().double().numpy(), mu.detach().cpu().double().numpy(), rel)
     Mn, qn = M.numpy(), q.numpy()
-    z = solve_from_support(Mn, qn, na, K, on, sliding, tol * max(1.0, float(np.abs(Mn).max()), float(np.abs(qn).max())))
-    return None if z is None else (z, float(np.abs(np.minimum(z, M.numpy() @ z + q.numpy())).max()))
+    scale = max(1.0, float(np.abs(Mn).max()), float(np.abs(qn).max()))
+    return solve_from_support(Mn, qn, na, K, on, sliding, tol * scale)
 
 
 def _from_pgs(lcp, b: int, M: torch.Tensor, q: torch.Tensor, beta0: torch.Tensor, na: int, settings: StepSettings):
