@@ -21,7 +21,7 @@ from typing import NamedTuple
 import torch
 
 __all__ = ["Chain", "JOINT_HINGE", "JOINT_SLIDE", "forward_kinematics", "joint_frames", "point_jacobian",
-           "fk_and_point_jacobian"]
+           "fk_and_point_jacobian", "Frames", "frames", "frames_point_jacobian"]
 
 JOINT_HINGE = 0
 JOINT_SLIDE = 1
@@ -224,26 +224,62 @@ def fk_and_point_jacobian(
 
 def _fk_and_point_jacobian(chain, q, root, link_index, points_local):
     R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)  # batch-last
-    B, D = q.shape
-    p = points_local.to(q)
+    x, J = _points_and_jacobian(chain, R, t, axis, anchor, link_index, points_local)
+    return _homogeneous(R, t), x, J
+
+
+def _points_and_jacobian(chain, R, t, axis, anchor, link_index, points_local):
+    """World points (B, P, 3) and their Jacobian (B, P, 3, D) from batch-last frames (:func:`_kinematics`)."""
+    B, D = R.shape[-1], axis.shape[0]
+    p = points_local.to(R)
     p = p.unsqueeze(-1) if p.dim() == 2 else p.permute(1, 2, 0)  # (P, 3, 1 | B)
     x = _mv(R[link_index], p) + t[link_index]  # (P, 3, B)
     # Only the joints that move a point's link contribute: gather those (S per point), fill the rest with zeros.
     sj = chain.support_joints[link_index]  # (P, S), -1 = padding
-    valid = (sj >= 0).to(q.dtype).view(*sj.shape, 1, 1)
+    valid = (sj >= 0).to(R.dtype).view(*sj.shape, 1, 1)
     sjc = sj.clamp(min=0)
     a = axis[sjc] * valid  # (P, S, 3, B)
     r = x.unsqueeze(1) - anchor[sjc]
     cross = torch.stack([a[:, :, 1] * r[:, :, 2] - a[:, :, 2] * r[:, :, 1],
                          a[:, :, 2] * r[:, :, 0] - a[:, :, 0] * r[:, :, 2],
                          a[:, :, 0] * r[:, :, 1] - a[:, :, 1] * r[:, :, 0]], dim=2)
-    hinge = (chain.joint_type[sjc] == JOINT_HINGE).to(q.dtype).view(*sj.shape, 1, 1)
+    hinge = (chain.joint_type[sjc] == JOINT_HINGE).to(R.dtype).view(*sj.shape, 1, 1)
     cols = cross * hinge + a * (1 - hinge)  # (P, S, 3, B)
     P, S = sj.shape
-    J = q.new_zeros(B, P, 3, D)
+    J = R.new_zeros(B, P, 3, D)
     index = sjc.view(1, P, 1, S).expand(B, P, 3, S)
     J = J.scatter_add(3, index, cols.permute(3, 0, 2, 1))
-    return _homogeneous(R, t), x.permute(2, 0, 1), J
+    return x.permute(2, 0, 1), J
+
+
+class Frames(NamedTuple):
+    """One forward-kinematics pass kept for later point Jacobians (:func:`frames`, :func:`frames_point_jacobian`).
+
+    poses: T_world_link, (B, L, 4, 4); the rest batch-last: R (L, 3, 3, B), t (L, 3, B), axis and anchor of every
+    joint in the world (D, 3, B)
+    """
+
+    poses: torch.Tensor
+    R: torch.Tensor
+    t: torch.Tensor
+    axis: torch.Tensor
+    anchor: torch.Tensor
+
+
+def frames(chain: Chain, q: torch.Tensor, root: torch.Tensor) -> Frames:
+    """Link poses and joint axes in one pass, for several :func:`frames_point_jacobian` calls at one configuration.
+
+    q: (B, D); root: (B, 4, 4). Not chunked (meant for the small batches of a simulation step).
+    """
+    R, t, axis, anchor = _kinematics(chain, q, root, need_joints=True)
+    return Frames(_homogeneous(R, t), R, t, axis, anchor)
+
+
+def frames_point_jacobian(chain: Chain, fr: Frames, link_index: torch.Tensor,
+                          points_local: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`point_jacobian` at the configuration of ``fr`` (:func:`frames`), without repeating the kinematics:
+    (points_world (B, P, 3), jacobian (B, P, 3, D)); the same arithmetic, so the same values."""
+    return _points_and_jacobian(chain, fr.R, fr.t, fr.axis, fr.anchor, link_index, points_local)
 
 
 def point_jacobian(

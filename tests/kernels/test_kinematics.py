@@ -151,3 +151,21 @@ def test_gradients_flow_through_fk(gen):
     T = hand.forward_kinematics(q)
     T[:, hand.distal_link, :3, 3].sum().backward()
     assert q.grad is not None and torch.isfinite(q.grad).all() and q.grad.abs().max() > 0
+
+
+def test_frames_point_jacobian_equals_a_fresh_pass(gen):
+    """One kinematics pass (``kinematic_frames``) serves any later point Jacobians at that configuration: the same
+    values, bit for bit, as ``point_jacobian``'s own pass, for any subset of points (here two disjoint ones)."""
+    from torchhand.hand.dynamics import kinematic_frames, point_jacobian, point_jacobian_at
+
+    hand = torchhand.default_hand()
+    q, root = hand.random_q(5, gen), random_root(5, gen)
+    sel = torch.randperm(hand.sample_link.numel(), generator=gen)[:40]
+    link, pts = hand.sample_link[sel], hand.sample_points[sel]
+    fr = kinematic_frames(hand, q, root)
+    assert torch.equal(fr.poses, hand.forward_kinematics(q, root))
+    for part in (slice(0, 17), slice(17, 40)):
+        want = point_jacobian(hand, q, link[part], pts[part], root)
+        got = point_jacobian_at(hand, fr, root, link[part], pts[part])
+        assert want.abs().max() > 0.05
+        assert torch.equal(got, want)

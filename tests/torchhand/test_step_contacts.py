@@ -9,7 +9,7 @@ import pytest
 import torch
 import trimesh
 
-from torchhand.interaction._contacts import BODY_OBJECT, BODY_SELF, TablePlane, find_contacts, self_pairs
+from torchhand.interaction._contacts import BODY_ENV, BODY_OBJECT, BODY_SELF, TablePlane, find_contacts, self_pairs
 from torchhand.interaction.step import StepObject, StepSettings, initial_state, quasi_static_step
 
 from .test_step import F64, _pose, hand_from_mjcf, lever_xml, pinch_xml
@@ -123,6 +123,42 @@ def test_finger_finger_slots_stop_fingers_at_touch():
             tau += sign * jacp.T @ fn.numpy()
     dq = (s.q - s.theta_r)[0].numpy()
     np.testing.assert_allclose(dq, C[0, 6:].numpy() * tau, atol=1e-9)
+
+
+def test_slot_jacobians_are_computed_where_active_and_equal_the_full_ones():
+    """find_contacts computes Jacobians only for the slots active in some rollout. Two rollouts of the pinch hand:
+    one closed (fingertips crossed) on a box, one open with its fingertips at the table and the box away (disjoint
+    active sets, finger-finger and table slots included): every slot's J rows equal point_jacobian at its point (for
+    a finger-finger slot J_a - J_b) where the slot is active, and are 0 where it is not."""
+    from torchhand.hand.dynamics import point_jacobian
+
+    hand = hand_from_mjcf(pinch_xml())
+    q = torch.tensor([[0.6, 0.3, 0.6, 0.3], [0.0, 0.0, 0.0, 0.0]], dtype=F64)
+    root = torch.cat([_pose(z=0.1), _pose(z=0.085)])
+    E = torch.cat([_pose(z=0.005), _pose(x=1.0)])
+    c = find_contacts(hand, q, root, object_pose=E, object_mesh=StepObject(None, 0.1, (0.0, 0.0, 0.0), np.eye(3) * 1e-4,
+                      1.0, mesh=_box()).mesh, geometry="capsules", plane=TablePlane(offset=0.0), margin=0.01,
+                      self_pairs=self_pairs(hand))
+    B, N = c.mask.shape
+    for b, bodies in ((0, {BODY_OBJECT, BODY_SELF}), (1, {BODY_ENV})):
+        assert {int(x) for x in c.body[c.mask[b]]} == bodies
+    J = c.J.reshape(B, N, 3, -1)
+    pairs = self_pairs(hand)
+    first_self = N - len(pairs)
+    for b in range(B):
+        for n in range(N):
+            if not bool(c.mask[b, n]):
+                assert not bool(J[b, n].any())
+                continue
+            link = int(c.link[n])
+            want = point_jacobian(hand, q[b:b + 1], [link], c.local[b:b + 1, n:n + 1], root[b:b + 1])[0, 0]
+            if int(c.body[n]) == BODY_SELF:
+                ib = int(pairs[n - first_self, 1])
+                pb = c.points[b, n] - c.separation[b, n] * c.d0[b, n]     # b's surface point, across the gap
+                T = hand.forward_kinematics(q[b:b + 1], root[b:b + 1])[0, ib]
+                lb = T[:3, :3].T @ (pb - T[:3, 3])
+                want = want - point_jacobian(hand, q[b:b + 1], [ib], lb[None, None], root[b:b + 1])[0, 0]
+            torch.testing.assert_close(J[b, n], want, rtol=0, atol=1e-12)
 
 
 def test_mesh_only_object_needs_capsule_geometry():

@@ -131,9 +131,15 @@ class ObjectMesh:
         which is exact for a closed outward-wound mesh; elsewhere (closest point on an edge or a vertex) trimesh's
         ray test ``mesh.ray.contains_points``, as in ``trimesh.proximity.signed_distance``.
         """
+        return self.signed_closest(points)[0]
+
+    def signed_closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`signed_distance` with the :meth:`closest` answer it rests on: points (N, 3) -> signed distance
+        (N,) (positive inside), closest surface point (N, 3), distance (N,), triangle (N,) long."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         closest, dist, tri = self.closest(points)
         if len(points) == 0:
-            return dist
+            return dist, closest, dist, tri
         normal = np.asarray(self.mesh.face_normals, dtype=np.float64)[tri]
         side = _dot(points - closest, normal)
         tris = self.mesh.triangles.view(np.ndarray)[tri]
@@ -156,7 +162,7 @@ class ObjectMesh:
             if len(doubt):
                 sign[doubt] = np.where(winding_number(self.mesh.triangles.view(np.ndarray), points[doubt]) > 0.5,
                                        1.0, -1.0)
-        return np.where(dist > trimesh.tol.merge, sign * dist, dist)
+        return np.where(dist > trimesh.tol.merge, sign * dist, dist), closest, dist, tri
 
     def closest(self, points: np.ndarray, chunk: int = 1 << 22) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Exact closest surface points: points (N, 3) -> closest (N, 3), distance (N,), triangle (N,) long.

@@ -129,7 +129,8 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
     r.add_argument("--grip-delay", type=float, default=0.1, metavar="S", help="reaction delay, s (0.1)")
     r.add_argument("--pyramid-m", type=int, default=4, metavar="M", help="friction pyramid direction pairs (4)")
     r.add_argument("--solver", choices=["lemke", "pgs", "auto"], default=None,
-                   help="LCP solver (default: lemke for one rollout, auto = batched PGS + Lemke for several)")
+                   help="LCP solver (default: lemke, per rollout; auto = batched PGS + Lemke for what it leaves; "
+                        "auto with --dtype float32)")
     r.add_argument("--settle-steps", type=int, default=0, metavar="N",
                    help="steps at the first reference before frame 0, object under gravity on the table (0)")
     r.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="rollout dtype (float64)")

@@ -55,6 +55,8 @@ __all__ = [
     "geom_inertial",
     "link_inertials",
     "point_jacobian",
+    "kinematic_frames",
+    "point_jacobian_at",
     "mass_matrix",
     "gravity_torques",
     "contact_torques",
@@ -300,6 +302,20 @@ def point_jacobian(hand: "HandModel", q: torch.Tensor, link_index, points_local:
     _, x, Jq = _kin.fk_and_point_jacobian(hand._chain(q), q, root, link_index, points_local)
     if not wrt_root:
         return Jq
+    return torch.cat([_root_columns(x - root[:, None, :3, 3]), Jq], dim=-1)
+
+
+def kinematic_frames(hand: "HandModel", q: torch.Tensor, root: torch.Tensor) -> _kin.Frames:
+    """One kinematics pass at (q, root), (B, D) and (B, 4, 4): link poses ``.poses`` (B, L, 4, 4) and what
+    :func:`point_jacobian_at` needs to give the Jacobians of any link-fixed points there without repeating it."""
+    return _kin.frames(hand._chain(q), q, root)
+
+
+def point_jacobian_at(hand: "HandModel", fr: _kin.Frames, root: torch.Tensor, link_index: torch.Tensor,
+                      points_local: torch.Tensor) -> torch.Tensor:
+    """:func:`point_jacobian` (``wrt_root=True``) at the configuration of ``fr`` (:func:`kinematic_frames`, taken
+    at the same ``root``): (B, P, 3, 6 + D); the same values, without a second kinematics pass."""
+    x, Jq = _kin.frames_point_jacobian(hand.chain, fr, link_index, points_local)
     return torch.cat([_root_columns(x - root[:, None, :3, 3]), Jq], dim=-1)
 
 

@@ -50,14 +50,16 @@ move them: a rigid environment, G block 0).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from ..hand.collision import hand_object_penetration, rigid_inverse
 from ..errors import InputValueError
-from ..hand.dynamics import point_jacobian
+from ..hand.dynamics import kinematic_frames, point_jacobian_at
 
 __all__ = ["TablePlane", "Contacts", "find_contacts", "support_points", "self_pairs", "BODY_OBJECT", "BODY_ENV",
            "BODY_OBJECT_ENV", "BODY_SELF"]
@@ -174,30 +176,34 @@ def _into_normal_cone(mesh, closest, tri, n):
     return out
 
 
+def _capsule_axes(hand, spacing: float):
+    """The hand's capsules as float64 arrays (a, b (L, 3), radius (L,)), the links with a capsule, and the points
+    on their axes at most ``spacing`` apart: fraction along the axis (P,) and link (P,)."""
+    from ..check.geometry import axis_points
+
+    ca = hand.capsule_a.detach().cpu().double().numpy()
+    cb = hand.capsule_b.detach().cpu().double().numpy()
+    rad = hand.capsule_radius.detach().cpu().double().numpy()
+    links = np.nonzero(rad > 0)[0]
+    frac, owner = axis_points(ca[links], cb[links], spacing)
+    return ca, cb, rad, links, frac, links[owner]
+
+
 def _object_capsules(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, mesh, margin: float,
                      spacing: float = AXIS_SPACING):
     """Each link's capsule against the exact mesh (module docstring): local (B, L, 3) link frame, hand point
     (B, L, 3) world, d0 (B, L, 3) world, separation (B, L) (inf where no axis point can come within ``margin``),
     has (B, L) bool."""
-    import numpy as np
-
-    from ..check.geometry import axis_points
-
     like = link_poses
     B, L = link_poses.shape[:2]
     lp = link_poses.detach().cpu().double().numpy()
     E = object_pose.detach().cpu().double().numpy()
-    ca = hand.capsule_a.detach().cpu().double().numpy()
-    cb = hand.capsule_b.detach().cpu().double().numpy()
-    rad = hand.capsule_radius.detach().cpu().double().numpy()
-    links = np.nonzero(rad > 0)[0]
+    ca, cb, rad, links, frac, owner = _per_hand(hand, f"axis {spacing!r}", lambda: _capsule_axes(hand, spacing))
     sep = np.full((B, L), np.inf)
     hand_pt = np.zeros((B, L, 3))
     d0 = np.zeros((B, L, 3))
     d0[..., 2] = 1.0
     if len(links):
-        frac, owner = axis_points(ca[links], cb[links], spacing)
-        owner = links[owner]
         R, t = lp[:, :, :3, :3], lp[:, :, :3, 3]
         aw = np.einsum("blij,lj->bli", R, ca) + t
         bw = np.einsum("blij,lj->bli", R, cb) + t
@@ -208,7 +214,7 @@ def _object_capsules(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, 
         bound = mesh.hull_distance_bound(po.reshape(-1, 3)).reshape(B, -1)
         bi, pi = np.nonzero(bound < r[None, :] + margin)
         if len(bi):
-            sd = mesh.signed_distance(po[bi, pi])                                           # positive inside
+            sd, c_all, _, tri_all = mesh.signed_closest(po[bi, pi])                        # positive inside
             s_all = -sd - r[pi]
             flat = np.full(B * L, np.inf)
             key = bi * L + owner[pi]
@@ -219,7 +225,7 @@ def _object_capsules(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, 
             sel = np.nonzero(best >= 0)[0]
             j = best[sel]
             p = po[bi[j], pi[j]]
-            c, dist, tri = mesh.closest(p)
+            c, tri = c_all[j], tri_all[j]
             inside = sd[j] > 0
             face_n = np.asarray(mesh.mesh.face_normals, dtype=np.float64)[tri]
             v = np.where(inside[:, None], c - p, p - c)
@@ -239,26 +245,58 @@ def _object_capsules(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, 
     return tt(local), tt(hand_pt), tt(d0), tt(sep), torch.from_numpy(has).to(like.device)
 
 
+_PER_HAND: dict = {}
+
+
+def _per_hand(hand, key: str, make):
+    """``make()``, computed once per hand object (a step recomputes nothing that depends on the hand alone)."""
+    k = (id(hand), key)
+    hit = _PER_HAND.get(k)
+    if hit is not None and hit[0]() is hand:
+        return hit[1]
+    for dead in [k2 for k2, (ref, _) in _PER_HAND.items() if ref() is None]:
+        del _PER_HAND[dead]
+    value = make()
+    _PER_HAND[k] = (weakref.ref(hand), value)
+    return value
+
+
 def self_pairs(hand) -> torch.Tensor:
     """The capsule pairs of different fingers that ``torchhand check`` measures for finger-finger penetration
     (:func:`torchhand.check.penetration.finger_pairs`: links with a capsule, a four-link finger's first link left
     out), (Q, 2) long."""
     from ..check.penetration import finger_pairs
 
-    cpu = hand if hand.joint_limits.device.type == "cpu" else hand.to("cpu")
-    return torch.from_numpy(finger_pairs(cpu)).to(torch.long)
+    def make():
+        cpu = hand if hand.joint_limits.device.type == "cpu" else hand.to("cpu")
+        return torch.from_numpy(finger_pairs(cpu)).to(torch.long)
+
+    return _per_hand(hand, "self_pairs", make).clone()
 
 
-def _self_slots(hand, q, root, link_poses, pairs: torch.Tensor):
+def _jacobian_where(hand, fr, root: torch.Tensor, link: torch.Tensor, local: torch.Tensor,
+                    active: torch.Tensor) -> torch.Tensor:
+    """Jacobians (B, N, 3, 6 + D) of the slot points ``local`` (B, N, 3) on links ``link`` (N,), computed only for
+    the slots active in some rollout (``active`` (B, N)) and 0 on the others."""
+    B, N = active.shape
+    cols = active.any(0).nonzero().flatten()
+    J = local.new_zeros(B, N, 3, 6 + hand.num_joints)
+    if cols.numel():
+        J[:, cols] = point_jacobian_at(hand, fr, root, link[cols], local[:, cols])
+    return J
+
+
+def _self_slots(hand, root, fr, pairs: torch.Tensor, margin: float):
     """Finger-finger slots (module docstring): local_a (B, Q, 3), point (B, Q, 3), d0 (B, Q, 3), separation
-    (B, Q), J (B, 3Q, 6 + D) unmasked."""
+    (B, Q), active (B, Q) (separation < ``margin``), J (B, 3Q, 6 + D), 0 on inactive pairs."""
     from torchhand.kernels.penetration import capsule_interpenetration
 
-    B, Q = q.shape[0], pairs.shape[0]
+    link_poses = fr.poses
+    B, Q = link_poses.shape[0], pairs.shape[0]
     rad = hand.capsule_radius.to(link_poses)
     res = capsule_interpenetration(link_poses, hand.capsule_a.to(link_poses), hand.capsule_b.to(link_poses), rad,
                                    pairs.to(link_poses.device))
-    ia, ib = pairs[:, 0].to(q.device), pairs[:, 1].to(q.device)
+    ia, ib = pairs[:, 0].to(root.device), pairs[:, 1].to(root.device)
     v = res.point_i - res.point_j
     dist = v.norm(dim=-1, keepdim=True)
     # coincident axes (never in practice): push along +z rather than divide by zero
@@ -268,11 +306,14 @@ def _self_slots(hand, q, root, link_poses, pairs: torch.Tensor):
     pa = res.point_i - rad[ia][None, :, None] * n
     pb = res.point_j + rad[ib][None, :, None] * n
     sep = dist[..., 0] - rad[ia] - rad[ib]
+    active = sep < margin
     inv = rigid_inverse(link_poses)
     la = _transform(inv[:, ia], pa)
     lb = _transform(inv[:, ib], pb)
-    J = point_jacobian(hand, q, torch.cat([ia, ib]), torch.cat([la, lb], 1), root).reshape(B, 2, Q, 3, -1)
-    return la, pa, n, sep, (J[:, 0] - J[:, 1]).reshape(B, 3 * Q, -1)
+    J = _jacobian_where(hand, fr, root, torch.cat([ia, ib]), torch.cat([la, lb], 1), active.repeat(1, 2))
+    J = J.reshape(B, 2, Q, 3, -1)
+    J = (J[:, 0] - J[:, 1]) * active[..., None, None].to(J.dtype)
+    return la, pa, n, sep, active, J.reshape(B, 3 * Q, -1)
 
 
 def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object_pose: torch.Tensor | None = None,
@@ -302,7 +343,8 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     if geometry not in ("samples", "capsules"):
         raise InputValueError(f"geometry: expected 'samples' or 'capsules', got {geometry!r}")
     B, L = q.shape[0], hand.num_links
-    link_poses = hand.forward_kinematics(q, root)
+    fr = kinematic_frames(hand, q, root)       # one kinematics pass for the poses and every Jacobian below
+    link_poses = fr.poses
     arangeL = torch.arange(L, device=q.device)
     parts = []
     if exact:
@@ -331,7 +373,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     sep = torch.cat([p[4] for p in parts], 1)
     mask = torch.cat([p[5] for p in parts], 1) & (sep < margin)
     N = link.shape[0]
-    J = point_jacobian(hand, q, link, local, root).reshape(B, 3 * N, -1)
+    J = _jacobian_where(hand, fr, root, link, local, mask).reshape(B, 3 * N, -1)
     J = J * mask.repeat_interleave(3, dim=1)[..., None].to(J.dtype)
     if object_points is not None and has_obj and plane is not None:
         if not (isinstance(object_points, torch.Tensor) and object_points.dim() == 2 and object_points.shape[1] == 3):
@@ -353,8 +395,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
         J = torch.cat([J, J.new_zeros(B, 3 * P, J.shape[2])], 1)
     if self_pairs is not None and self_pairs.shape[0] > 0:
         Q = self_pairs.shape[0]
-        la, pa, n, s_self, J_self = _self_slots(hand, q, root, link_poses, self_pairs)
-        m_self = s_self < margin
+        la, pa, n, s_self, m_self, J_self = _self_slots(hand, root, fr, self_pairs, margin)
         body = torch.cat([body, torch.full((Q,), BODY_SELF, dtype=torch.long, device=q.device)])
         link = torch.cat([link, self_pairs[:, 0].to(q.device)])
         local = torch.cat([local, la], 1)
@@ -362,7 +403,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
         d0 = torch.cat([d0, n], 1)
         sep = torch.cat([sep, s_self], 1)
         mask = torch.cat([mask, m_self], 1)
-        J = torch.cat([J, J_self * m_self.repeat_interleave(3, dim=1)[..., None].to(J_self.dtype)], 1)
+        J = torch.cat([J, J_self], 1)
     sep = torch.where(mask, sep, torch.zeros_like(sep))
     return Contacts(link, body, local, points, d0, sep, mask, J)
 

@@ -52,8 +52,9 @@ class ResynthSettings:
     """Settings of :func:`~torchhand.interaction.resynth.resynthesize`.
 
     dt: step h, seconds (None: 1 / the scene's fps); pyramid_m: friction pyramid pairs (4); solver: "lemke" |
-    "pgs" | "auto" | None (None: Lemke for one float64 rollout, "auto" - batched PGS, Lemke for stragglers - for
-    several or in float32, where Lemke cycles on the rounded problems of resting contacts);
+    "pgs" | "auto" | None (None: Lemke in float64, warm-started per rollout, so that every rollout of a batch is
+    solved as it would be alone; "auto" - batched PGS, Lemke for stragglers - in float32, where Lemke cycles on the
+    rounded problems of resting contacts);
     margin: contact candidate distance, metres; settle_steps: steps at the frame-0 reference before the first frame;
     support_points: most object-table slots; grip: :class:`~torchhand.interaction.grip.GripSettings`;
     hold_frame: frame the object slip is measured from (None: the first frame at which the reference root has moved

@@ -66,6 +66,15 @@ def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tenso
         ``failed_step`` (B,) (-1: completed), ``failed_status`` (B,) int8, ``grip_events`` list of
         (rollout, frame, link), ``onset`` (B,); fields also read by key (``rec["q"]``)
     """
+    from threadpoolctl import threadpool_limits
+
+    # the per-rollout LCPs are small dense NumPy solves: one BLAS thread, because several threads on such problems
+    # only contend (6x slower measured on a busy 2-core machine) and the results must not depend on the cores
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress)
+
+
+def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress):
     B, T, D = theta_r.shape
     like = theta_r
     state = _start(hand, obj, env, theta_r, root_r, object_pose0, settings)

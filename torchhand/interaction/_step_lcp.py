@@ -46,13 +46,17 @@ class RigidTerms:
 
 @dataclass(frozen=True, eq=False)
 class StepTerms:
-    """Steps 1-7 over the N slots of ``contacts`` (K = 2m + 1 pyramid directions).
+    """Steps 1-7 at the slots of ``contacts`` (K = 2m + 1 pyramid directions); the matrices over the active slots
+    only (Na = the most active slots of a rollout, active slots first in slot order, padding masked), which is
+    where they are not zero.
 
     contacts: the slots at step k; on_tab: object-plane slots, (B, N) bool; on_body: slots whose first body is the
-    object (hand-object or object-plane), (B, N) bool; sign: s_i, the sign of the force the object receives, (B, N);
-    dth: J's input dtheta_r + theta_err, (B, 6 + D); G: J C J^T, (B, 3N, 3N), m/N; D: pyramid directions,
-    (B, N, 3, K); U, u: the object's signed U_phi (B, 3N, 3N) and u_phi (B, 3N) (zero without an object); mu: friction
-    per slot, (B, N); f_k: f^k, (B, 3N), newtons; s_prime: (B, N, K), metres; rigid: :class:`RigidTerms` or None
+    object (hand-object or object-plane), (B, N) bool; sign: s_i, the sign of the force the object receives, (N,);
+    dth: J's input dtheta_r + theta_err, (B, 6 + D); D: pyramid directions, (B, N, 3, K); mu: friction per slot,
+    (B, N); f_k: f^k, (B, 3N), newtons; s_prime: (B, N, K), metres (0 on inactive slots); rigid:
+    :class:`RigidTerms` or None.
+    Over the active slots: order: slot index of each, (B, Na) long; mask_c: (B, Na) bool; G: J C J^T,
+    (B, 3Na, 3Na), m/N; U, u: the object's signed U_phi (B, 3Na, 3Na) and u_phi (B, 3Na) (zero without an object)
     """
 
     contacts: Contacts
@@ -60,14 +64,16 @@ class StepTerms:
     on_body: torch.Tensor
     sign: torch.Tensor
     dth: torch.Tensor
-    G: torch.Tensor
     D: torch.Tensor
-    U: torch.Tensor
-    u: torch.Tensor
     mu: torch.Tensor
     f_k: torch.Tensor
     s_prime: torch.Tensor
     rigid: RigidTerms | None
+    order: torch.Tensor
+    mask_c: torch.Tensor
+    G: torch.Tensor
+    U: torch.Tensor
+    u: torch.Tensor
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,10 +108,10 @@ class SlotSolution:
     forces: torch.Tensor
 
 
-def _rigid_terms(state: StepState, obj: StepObject, c: Contacts, S3: torch.Tensor, on_body: torch.Tensor,
-                 settings: StepSettings, act: tuple):
-    """Step 6 with an object: (:class:`RigidTerms`, signed U_phi, signed u_phi, its friction (B, 1)); U_phi and
-    u_phi are computed on the active slots ``act`` (:func:`_active`) and scattered to all N."""
+def _rigid_terms(state: StepState, obj: StepObject, c: Contacts, sign_c: torch.Tensor, on_body: torch.Tensor,
+                 settings: StepSettings, order: torch.Tensor):
+    """Step 6 with an object: (:class:`RigidTerms`, signed U_phi (B, 3Na, 3Na), signed u_phi (B, 3Na), its friction
+    (B, 1)) over the active slots ``order`` (B, Na) (:func:`_compact`), whose signs s_i are ``sign_c`` (B, Na)."""
     B = state.q.shape[0]
     like = state.q
     E_wb = obj.body_frame(state.object_pose)
@@ -113,20 +119,29 @@ def _rigid_terms(state: StepState, obj: StepObject, c: Contacts, S3: torch.Tenso
     g = torch.tensor(settings.gravity, dtype=like.dtype, device=like.device)
     mass = obj.mass_per_rollout(B, like)
     w_ext = torch.cat([like.new_zeros(B, 3), mass[:, None] * (E_wb[:, :3, :3].transpose(1, 2) @ g)], -1)
-    order, idx = act
     U, u = rigid_body_terms(E_wb, state.phi, Mb, c.points.gather(1, order[..., None].expand(-1, -1, 3)), settings.h,
                             w_ext, on_body.gather(1, order))
-    U, u = _scatter_blocks(U, idx, 3 * c.mask.shape[1]), like.new_zeros(B, 3 * c.mask.shape[1]).scatter(1, idx, u)
     # hand-object slots: the object receives -f (the paper's U_phi, u_phi); object-plane slots: +f
-    U = U * S3[:, None] * S3[None, :]
+    S3 = sign_c.repeat_interleave(3, dim=1)
+    U = U * S3[:, :, None] * S3[:, None, :]
     u = -u * S3
     mu_obj = obj.mu_per_rollout(B, like)[:, None]
     return RigidTerms(E_wb, Mb, w_ext), U, u, mu_obj
 
 
+def _slot_mu(c: Contacts, mu_obj: torch.Tensor, env: TablePlane | None, settings: StepSettings,
+             like: torch.Tensor) -> torch.Tensor:
+    """The friction coefficient of every slot, (B, N): the object's (B, 1), the table's, or the fingers'."""
+    B = like.shape[0]
+    mu_env = like.new_full((B, 1), env.mu if env is not None else 0.0)
+    mu = torch.where(c.body == BODY_OBJECT, mu_obj, mu_env)
+    return torch.where(c.body == BODY_SELF, like.new_full((B, 1), settings.self_mu), mu)
+
+
 def step_terms(state: StepState, theta_r_next: torch.Tensor, root_r_next: torch.Tensor, C: torch.Tensor,
                obj: StepObject | None, env: TablePlane | None, settings: StepSettings) -> StepTerms:
-    """Steps 2-7 at the slots of ``state.contacts``: pyramids, G = J C J^T, the object's terms, mu and s'."""
+    """Steps 2-7 at the slots of ``state.contacts``: pyramids, G = J C J^T, the object's terms, mu and s', the
+    matrices over the active slots only (:class:`StepTerms`)."""
     B = state.q.shape[0]
     like = state.q
     c = state.contacts
@@ -135,41 +150,31 @@ def step_terms(state: StepState, theta_r_next: torch.Tensor, root_r_next: torch.
     on_tab = c.mask & (c.body == BODY_OBJECT_ENV)
     on_body = on_obj | on_tab
     sign = torch.where(c.body == BODY_OBJECT_ENV, 1.0, -1.0).to(like)            # force the object receives: s_i f_i
-    S3 = sign.repeat_interleave(3)
     dth = torch.cat([root_displacement(root_r_next, state.root_r), theta_r_next - state.theta_r], -1)
     dth = dth + state.theta_err
-    act = _active(c.mask)        # G and U_phi vanish outside the active slots: computed there only
-    order, idx = act
-    G_act = effective_compliance(c.J.gather(1, idx[..., None].expand(-1, -1, c.J.shape[2])), C, c.mask.gather(1, order))
-    G = _scatter_blocks(G_act, idx, 3 * N)
+    order, mask_c = _compact(c.mask)         # G and U_phi vanish outside the active slots: computed there only
+    idx = _rows(order)
+    J_c = c.J.gather(1, idx[..., None].expand(-1, -1, c.J.shape[2]))
+    G = effective_compliance(J_c, C, mask_c)
     Dfull = friction_pyramid(c.d0, settings.pyramid_m)
     if obj is not None:
-        rigid, U, u, mu_obj = _rigid_terms(state, obj, c, S3, on_body, settings, act)
+        rigid, U, u, mu_obj = _rigid_terms(state, obj, c, sign[order], on_body, settings, order)
     else:
         rigid = None
-        U, u = torch.zeros_like(G), like.new_zeros(B, 3 * N)
+        U, u = torch.zeros_like(G), like.new_zeros(B, idx.shape[1])
         mu_obj = like.new_zeros(B, 1)
-    mu_env = like.new_full((B, 1), env.mu if env is not None else 0.0)
-    mu = torch.where(c.body == BODY_OBJECT, mu_obj, mu_env)
-    mu = torch.where(c.body == BODY_SELF, like.new_full((B, 1), settings.self_mu), mu)
+    mu = _slot_mu(c, mu_obj, env, settings, like)
     fk = state.forces.reshape(B, 3 * N)
-    sp = kry_pai_s_prime(Dfull, c.separation, G=G, f_k=fk, J=c.J, dtheta_r=dth, u_phi=u)
-    return StepTerms(c, on_tab, on_body, sign, dth, G, Dfull, U, u, mu, fk, sp, rigid)
+    K = Dfull.shape[-1]
+    sp_c = kry_pai_s_prime(Dfull.gather(1, order[..., None, None].expand(-1, -1, 3, K)), c.separation.gather(1, order),
+                           G=G, f_k=fk.gather(1, idx), J=J_c, dtheta_r=dth, u_phi=u)
+    sp = _scatter(sp_c, order, mask_c, N)
+    return StepTerms(c, on_tab, on_body, sign, dth, Dfull, mu, fk, sp, rigid, order, mask_c, G, U, u)
 
 
-def _active(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The active slots first (:func:`_compact`'s order, (B, Na)) and their 3 Na rows, (B, 3 Na)."""
-    order = _compact(mask)[0]
-    idx = (order[..., None] * 3 + torch.arange(3, device=order.device)).reshape(order.shape[0], -1)
-    return order, idx
-
-
-def _scatter_blocks(X: torch.Tensor, idx: torch.Tensor, n3: int) -> torch.Tensor:
-    """X (B, 3 Na, 3 Na) on the rows and columns ``idx`` (B, 3 Na) of a zero (B, n3, n3): :func:`_gather_blocks`
-    undone (the indices are distinct, so nothing is summed)."""
-    B, m = idx.shape
-    rows = X.new_zeros(B, m, n3).scatter(2, idx[:, None, :].expand(-1, m, -1), X)
-    return X.new_zeros(B, n3, n3).scatter(1, idx[:, :, None].expand(-1, -1, n3), rows)
+def _rows(order: torch.Tensor) -> torch.Tensor:
+    """The 3 rows of each slot of ``order`` (B, Na) in the stacked (B, 3N) layout, (B, 3 Na)."""
+    return (order[..., None] * 3 + torch.arange(3, device=order.device)).reshape(order.shape[0], -1)
 
 
 def _compact(mask: torch.Tensor):
@@ -181,13 +186,6 @@ def _compact(mask: torch.Tensor):
     return order, mask.gather(1, order)
 
 
-def _gather_blocks(X: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
-    """X (B, 3N, 3N) restricted to the 3x3 blocks of ``order`` (B, Na) -> (B, 3Na, 3Na)."""
-    idx = (order[..., None] * 3 + torch.arange(3, device=order.device)).reshape(order.shape[0], -1)
-    X = X.gather(1, idx[..., None].expand(-1, -1, X.shape[2]))
-    return X.gather(2, idx[:, None, :].expand(-1, idx.shape[1], -1))
-
-
 def _scatter(xc: torch.Tensor, order: torch.Tensor, mask_c: torch.Tensor, N: int) -> torch.Tensor:
     """Compact slot values (B, Na, ...) back to the N slots (B, N, ...), zero on inactive slots."""
     B, Na = order.shape
@@ -197,20 +195,20 @@ def _scatter(xc: torch.Tensor, order: torch.Tensor, mask_c: torch.Tensor, N: int
 
 
 def _env_compliance(terms: StepTerms, settings: StepSettings, like: torch.Tensor) -> torch.Tensor:
-    """eps on the three rows of every object-plane slot, 0 elsewhere, (B, 3N), m/N."""
-    return settings.env_compliance * terms.on_tab.repeat_interleave(3, dim=1).to(like)
+    """eps on the three rows of every active object-plane slot, 0 elsewhere, (B, 3Na), m/N."""
+    on_tab_c = terms.on_tab.gather(1, terms.order)
+    return settings.env_compliance * on_tab_c.repeat_interleave(3, dim=1).to(like)
 
 
 def compact_problem(terms: StepTerms, state: StepState, settings: StepSettings) -> CompactProblem:
     """Step 7's LCP over the active slots (quasi-rigid object-plane slots: G gains eps on their rows)."""
     K = 2 * settings.pyramid_m + 1
-    order, mask_c = _compact(terms.contacts.mask)
+    order, mask_c = terms.order, terms.mask_c
     Dc = terms.D.gather(1, order[..., None, None].expand(-1, -1, 3, K))
     # quasi-rigid object-plane slots: nu gains eps f^{k+1} (G holds no f^k term for them, so s' is unchanged)
     G_lcp = terms.G + torch.diag_embed(_env_compliance(terms, settings, state.q))
-    lcp = build_kry_pai_lcp(Dc, _gather_blocks(G_lcp, order), _gather_blocks(terms.U, order),
-                            terms.s_prime.gather(1, order[..., None].expand(-1, -1, K)), terms.mu.gather(1, order),
-                            mask=mask_c)
+    lcp = build_kry_pai_lcp(Dc, G_lcp, terms.U, terms.s_prime.gather(1, order[..., None].expand(-1, -1, K)),
+                            terms.mu.gather(1, order), mask=mask_c)
     beta0 = torch.where(mask_c[..., None], state.beta.gather(1, order[..., None].expand(-1, -1, K)), 0.0)
     return CompactProblem(order, mask_c, lcp, beta0)
 
@@ -239,10 +237,13 @@ def expand_solution(terms: StepTerms, problem: CompactProblem, state: StepState,
 
 
 def predicted_motion(terms: StepTerms, f_next: torch.Tensor, settings: StepSettings) -> torch.Tensor:
-    """du: the relative motion of every slot's first body w.r.t. its counterpart (Eq. 10), (B, N, 3), metres."""
+    """du: the relative motion of every slot's first body w.r.t. its counterpart (Eq. 10), (B, N, 3), metres (0 on
+    inactive slots, whose G, U_phi, u_phi and J rows are 0)."""
     B, N = f_next.shape[:2]
-    G, U, u, fk = terms.G, terms.U, terms.u, terms.f_k
-    return ((G @ (f_next.reshape(B, -1) - fk)[..., None]).squeeze(-1)
-            + (terms.contacts.J @ terms.dth[..., None]).squeeze(-1)
-            + _env_compliance(terms, settings, f_next) * f_next.reshape(B, -1)
-            - (U @ f_next.reshape(B, -1, 1)).squeeze(-1) - u).reshape(B, N, 3)
+    order, idx = terms.order, _rows(terms.order)
+    G, U, u = terms.G, terms.U, terms.u
+    f = f_next.reshape(B, -1).gather(1, idx)
+    J_c = terms.contacts.J.gather(1, idx[..., None].expand(-1, -1, terms.contacts.J.shape[2]))
+    du = ((G @ (f - terms.f_k.gather(1, idx))[..., None]).squeeze(-1) + (J_c @ terms.dth[..., None]).squeeze(-1)
+          + _env_compliance(terms, settings, f_next) * f - (U @ f[..., None]).squeeze(-1) - u)
+    return _scatter(du.reshape(B, -1, 3), order, terms.mask_c, N)

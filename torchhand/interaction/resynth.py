@@ -145,8 +145,9 @@ def _environment(scene, variants: tuple, settings: ResynthSettings, dtype: torch
 
 
 def _step_settings(settings: ResynthSettings, scene, h: float, B: int) -> StepSettings:
-    """The step's settings; the solver: Lemke for one float64 rollout, else "auto", unless ``settings.solver``."""
-    solver = settings.solver or ("lemke" if B == 1 and settings.dtype == torch.float64 else "auto")
+    """The step's settings; the solver: Lemke in float64 (each rollout's LCP solved as it would be alone), "auto"
+    in float32, unless ``settings.solver``."""
+    solver = settings.solver or ("lemke" if settings.dtype == torch.float64 else "auto")
     return StepSettings(h=h, pyramid_m=settings.pyramid_m, margin=settings.margin, solver=solver,
                         gravity=tuple(float(x) for x in scene.gravity), geometry="capsules",
                         pgs_max_iters=settings.pgs_max_iters, self_contacts=settings.self_contacts,
