@@ -14,6 +14,11 @@ interleaved (each repeat runs every row once):
 
 Real time at 120 Hz is <= 8.3 ms per step. ``--breakdown`` profiles one more run of each row and prints where a
 step's time goes (cumulative milliseconds per step of the stages in ``STAGES``; profiling adds its own overhead).
+
+``--variants N`` adds the batched variants: N rollouts of the default set-up (masses 0.5-2x the object's, frictions
+0.6-1.2x the scene's, compliance scales 0.5-1.5, spread over the N) as one batched step, against the same N run
+one at a time (the reference, in the same run), in rollout-steps per second; it also prints how far each batched
+rollout's motion is from its run alone (max |q| and object-position difference).
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _timing import machine, print_table, write_json  # noqa: E402
 
-from torchhand.interaction.resynth import ResynthSettings, load_interaction, resynthesize  # noqa: E402
+from torchhand.interaction.resynth import ResynthSettings, Variant, load_interaction, resynthesize  # noqa: E402
 from torchhand.scene import load_scene  # noqa: E402
 
 CASES = (("exact mesh + finger-finger slots (default)", {}),
@@ -63,6 +68,43 @@ def breakdown(run, steps: int) -> dict:
     return out
 
 
+def spread_variants(n: int, mass: float, friction: float) -> tuple:
+    """n variants with masses 0.5-2x ``mass``, frictions 0.6-1.2x ``friction`` and compliance scales 0.5-1.5, each
+    spread evenly over the n in a different order (so that no two variants are alike)."""
+    u = [(i + 0.5) / n for i in range(n)]
+    return tuple(Variant(mass=mass * (0.5 + 1.5 * u[i]), friction=friction * (0.6 + 0.6 * u[(7 * i + 3) % n]),
+                         compliance_scale=0.5 + u[(11 * i + 5) % n]) for i in range(n))
+
+
+def variant_rows(inter, scene, n: int) -> tuple[list, dict]:
+    """The batched variants against one at a time (module docstring): two rows and the batch/alone differences."""
+    import time
+
+    import numpy as np
+
+    vs = spread_variants(n, scene.object.mass, scene.friction)
+    t = time.perf_counter()
+    batch = resynthesize(inter, scene, variants=vs)
+    t_batch = time.perf_counter() - t
+    steps = int(batch.rollouts[0].q.shape[0])
+    t_alone, dq, dp = 0.0, 0.0, 0.0
+    for b, v in enumerate(vs):
+        t = time.perf_counter()
+        alone = resynthesize(inter, scene, variants=(v,)).rollouts[0]
+        t_alone += time.perf_counter() - t
+        mine = batch.rollouts[b]
+        dq = max(dq, float(np.abs(np.asarray(mine.q) - np.asarray(alone.q)).max()))
+        pos = np.asarray(mine.object_pose)[:, :3, 3] - np.asarray(alone.object_pose)[:, :3, 3]
+        dp = max(dp, float(np.abs(pos).max()))
+    done = sum(r.ok for r in batch.rollouts)
+    rows = [{"contacts": f"{n} variants, one batched step", "steps": steps, "rollout_steps_per_s": n * steps / t_batch,
+             "completed": f"{done}/{n}"},
+            {"contacts": f"the {n} variants one at a time (reference)", "steps": steps,
+             "rollout_steps_per_s": n * steps / t_alone}]
+    rows[0]["x_one_at_a_time"] = rows[0]["rollout_steps_per_s"] / rows[1]["rollout_steps_per_s"]
+    return rows, {"max_q_diff_rad": dq, "max_object_position_diff_m": dp}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inferred", help="output directory of `torchhand capture from-result`")
@@ -70,6 +112,8 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", help="write the results here (atomically)")
     p.add_argument("--breakdown", action="store_true", help="print where a step's time goes, per row")
+    p.add_argument("--variants", type=int, default=0, metavar="N",
+                   help="also time N variants as one batch against one at a time (module docstring)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     inter = load_interaction(os.path.join(a.inferred, "interaction.npz"))
@@ -97,8 +141,16 @@ def main(argv=None) -> int:
             print(f"\n{row['contacts']}: ms per step (profiled)")
             for stage, ms in row["stages_ms"].items():
                 print(f"  {stage:<40} {ms:8.2f}")
+    extra = {}
+    if a.variants > 0:
+        vrows, extra = variant_rows(inter, scene, a.variants)
+        print()
+        print_table(vrows, ["contacts", "steps", "rollout_steps_per_s", "x_one_at_a_time", "completed"])
+        print(f"batched against alone: max |q| difference {extra['max_q_diff_rad']:.2e} rad, object position "
+              f"{extra['max_object_position_diff_m']:.2e} m")
+        rows += vrows
     if a.json:
-        write_json(a.json, {"machine": info, "command": " ".join(sys.argv), "rows": rows})
+        write_json(a.json, {"machine": info, "command": " ".join(sys.argv), "rows": rows, **extra})
     return 0
 
 

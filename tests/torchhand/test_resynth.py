@@ -155,6 +155,31 @@ def test_batched_rollouts_match_single_ones():
         np.testing.assert_allclose(both["object_pose"][b].numpy(), one["object_pose"][0].numpy(), atol=2e-4)
 
 
+def test_variants_in_one_batch_are_solved_as_alone(tmp_path):
+    """resynthesize's default for several rollouts solves each rollout's LCP as it would be alone (Lemke from that
+    rollout's previous support): three variants (mass, friction, compliance scale) in one batch move as each of them
+    run alone, to round-off (the batch's padded matrices can sum in another order), with the same grip events."""
+    from torchhand.interaction.resynth import ResynthSettings, Variant, resynthesize
+    from torchhand.scene import load_scene
+
+    scene_dir, inter_path = pinch_files(tmp_path / "in")
+    scene, inter = load_scene(scene_dir), load_interaction(inter_path)
+    variants = (Variant(mass=0.1), Variant(friction=0.4), Variant(compliance_scale=0.5))
+    settings = ResynthSettings(grip=GripSettings("imminent"))
+    both = resynthesize(inter, scene, variants=variants, settings=settings)
+    assert all(r.ok for r in both.rollouts)
+    lifted = [float(np.ptp(np.asarray(r.object_pose)[:, 2, 3])) for r in both.rollouts]
+    assert min(lifted) > 0.01                      # every variant lifts the box: the comparison is not of rest
+    for b, v in enumerate(variants):
+        one = resynthesize(inter, scene, variants=(v,), settings=settings).rollouts[0]
+        mine = both.rollouts[b]
+        # measured: equal, or 1e-14 apart; batched PGS first (solver "auto") is 1e-9 m and 5e-7 N away
+        np.testing.assert_allclose(np.asarray(mine.q), np.asarray(one.q), rtol=0, atol=1e-11)
+        np.testing.assert_allclose(np.asarray(mine.object_pose), np.asarray(one.object_pose), rtol=0, atol=1e-11)
+        np.testing.assert_allclose(np.asarray(mine.contact_force), np.asarray(one.contact_force), rtol=0, atol=1e-10)
+        np.testing.assert_array_equal(mine.grip_events, one.grip_events)
+
+
 def test_heavy_box_slips_less_with_delayed_grip():
     """0.35 kg: without grip adjustment the pinch loses the box; with the 100 ms delayed response it holds it.
     Grip events start at least 100 ms (12 steps at 120 Hz) after the slip onset."""
