@@ -16,11 +16,12 @@ docs/interaction_capture.md.
 ``torchhand capture resynthesize INTERACTION --scene SCENE --out DIR``
     Quasi-static resynthesis (Sec. 7-8) of an interaction trajectory (interaction.npz) with the scene's object,
     table and hand: contacts, friction pyramids, G = J C J^T with root compliance, the object's rigid-body terms,
-    object-table contacts, the contact LCP (Lemke for one rollout, batched PGS for several), grip adjustment on slip.
+    object-table contacts, the contact LCP (Lemke per rollout, warm-started), grip adjustment on slip.
     --mass, --compliance-scale and --friction take comma-separated lists and expand to every combination, one
     rollout each. Writes the result directory of docs/result_format.md (stats.json method "kry_pai", one
-    solutions/sol_XXX.npz per completed rollout). Exit 0 written; 1 every rollout stopped at an unsolved LCP
-    (the step is named); 2 bad input.
+    solutions/sol_XXX.npz per completed rollout). --variants FILE instead: named variants (each its own object,
+    mass, friction, compliance scale) as rollouts of one batched step, one result directory each, DIR/<name>.
+    Exit 0 written; 1 every rollout stopped at an unsolved LCP (the step is named); 2 bad input.
 
 ``torchhand capture from-result RESULT --out DIR``
     An inferred interaction from a ``torchhand synthesize`` result: the solution's contact forces (negated: on the hand)
@@ -118,8 +119,11 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
     r.add_argument("--overwrite", action="store_true", help="replace an earlier result in --out")
     r.add_argument("--dt", type=float, default=None, metavar="S", help="step h, s (default 1/fps of the scene)")
     r.add_argument("--mass", default=None, metavar="KG[,KG...]", help="object masses, one rollout each")
-    r.add_argument("--compliance-scale", default="1", metavar="S[,S...]", help="scales of the compliance C (1)")
+    r.add_argument("--compliance-scale", default=None, metavar="S[,S...]", help="scales of the compliance C (1)")
     r.add_argument("--friction", default=None, metavar="MU[,MU...]", help="hand-object friction coefficients")
+    r.add_argument("--variants", default=None, metavar="FILE",
+                   help="a TOML file of named variants (object, mass, friction, compliance scale), all rollouts of "
+                        "one batched step; one result directory each, --out DIR/<name> (docs/interaction_capture.md)")
     r.add_argument("--grip", choices=["none", "delayed", "imminent"], default="none",
                    help="grip adjustment on slip (Sec. 8.1): none, delayed (100 ms after slip) or imminent")
     r.add_argument("--slip-ratio", type=float, default=0.9, metavar="R", help="imminent slip at rho > R mu (0.9)")
@@ -226,9 +230,7 @@ def run_resynthesize(args) -> int:
     import torch
 
     from torchhand.interaction.grip import GripSettings
-    from torchhand.interaction.resynth import (ResynthSettings, _progress_line, expand_variants, load_interaction,
-                                               prepare_result_dir, resynthesize, write_resynthesis)
-    from torchhand.scene import load_scene
+    from torchhand.interaction.resynth import ResynthSettings
 
     apply_threads(args.threads)
     grip = GripSettings(mode=args.grip, ratio=args.slip_ratio, min_force=args.min_force, factor=args.tighten,
@@ -236,7 +238,19 @@ def run_resynthesize(args) -> int:
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
                                settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
                                object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel)
-    variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale, "--compliance-scale"),
+    if args.variants is not None:
+        return _resynthesize_variant_file(args, settings)
+    return _resynthesize_grid(args, settings)
+
+
+def _resynthesize_grid(args, settings) -> int:
+    """--mass, --compliance-scale and --friction: every combination, one result directory."""
+    from torchhand.interaction.resynth import (_progress_line, expand_variants, load_interaction, prepare_result_dir,
+                                               resynthesize, write_resynthesis)
+    from torchhand.scene import load_scene
+
+    variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale or "1",
+                                                                     "--compliance-scale"),
                                _floats(args.friction, "--friction"))
     writer = prepare_result_dir(args.out, overwrite=args.overwrite)
     try:
@@ -247,19 +261,57 @@ def run_resynthesize(args) -> int:
         writer.abandon()
         raise
     out = write_resynthesis(result, writer=writer)
-    ok = [r for r in result.rollouts if r.ok]
-    for i, r in enumerate(result.rollouts):
+    _print_rollouts(result, scene, [f"rollout {i}" for i in range(len(result.rollouts))])
+    ok = sum(r.ok for r in result.rollouts)
+    print(f"{ok}/{len(result.rollouts)} rollouts completed, {result.timings['per_step_ms']:.1f} ms per step; "
+          f"wrote {out}")
+    return 0 if ok else 1
+
+
+def _resynthesize_variant_file(args, settings) -> int:
+    """--variants FILE: the file's variants as rollouts of one batch, one result directory each (--out DIR/name);
+    every directory is validated before the work."""
+    from torchhand.interaction._variant_spec import load_variant_file
+    from torchhand.interaction.resynth import (_progress_line, load_interaction, prepare_result_dir, resynthesize,
+                                               write_resynthesis)
+    from torchhand.scene import load_scene
+
+    if args.mass is not None or args.friction is not None or args.compliance_scale is not None:
+        raise InputValueError("--variants: give masses, frictions and compliance scales in the file, not with "
+                              "--mass, --friction or --compliance-scale")
+    inter = load_interaction(args.interaction)
+    scene = load_scene(args.scene)
+    named = load_variant_file(args.variants, scene)
+    writers = []
+    try:
+        for name, _ in named:
+            writers.append(prepare_result_dir(Path(args.out) / name, overwrite=args.overwrite))
+        result = resynthesize(inter, scene, variants=tuple(v for _, v in named), settings=settings,
+                              progress=_progress_line)
+    except BaseException:
+        for w in writers:
+            w.abandon()
+        raise
+    for i, w in enumerate(writers):
+        write_resynthesis(result.variant_result(i), writer=w)
+    _print_rollouts(result, scene, [name for name, _ in named])
+    ok = sum(r.ok for r in result.rollouts)
+    print(f"{ok}/{len(result.rollouts)} variants completed, {result.timings['per_step_ms']:.1f} ms per step "
+          f"(one batch); wrote {len(writers)} result directories under {args.out}")
+    return 0 if ok else 1
+
+
+def _print_rollouts(result, scene, labels) -> None:
+    for label, r in zip(labels, result.rollouts):
         v = r.variant
-        line = (f"rollout {i} (mass {v.mass if v.mass is not None else scene.object.mass:g} kg, friction "
+        obj = scene.object if v.object is None else v.object
+        line = (f"{label} ({obj.name}, mass {v.mass if v.mass is not None else obj.mass:g} kg, friction "
                 f"{v.friction if v.friction is not None else scene.friction:g}, compliance x{v.compliance_scale:g}): ")
         if r.ok:
             print(line + f"max object slip {1e3 * r.object_slip.max():.1f} mm, {len(r.grip_events)} grip events, "
                   f"max |theta_err| {r.theta_err.max():.2e}")
         else:
             print(line + f"stopped at step {r.failed_step} ({r.failed_status}): {r.status.message}", file=sys.stderr)
-    print(f"{len(ok)}/{len(result.rollouts)} rollouts completed, {result.timings['per_step_ms']:.1f} ms per step; "
-          f"wrote {out}")
-    return 0 if ok else 1
 
 
 def run_from_result(args) -> int:

@@ -286,6 +286,30 @@ def _jacobian_where(hand, fr, root: torch.Tensor, link: torch.Tensor, local: tor
     return J
 
 
+def _object_capsules_of(hand, link_poses: torch.Tensor, object_pose: torch.Tensor, mesh, margin: float):
+    """:func:`_object_capsules` for one mesh or a sequence of B meshes (one per rollout): the rollouts that share a
+    mesh are run together, and each rollout's answer is what it would be alone."""
+    if not isinstance(mesh, (tuple, list)):
+        return _object_capsules(hand, link_poses, object_pose, mesh, margin)
+    B = link_poses.shape[0]
+    if len(mesh) != B:
+        raise InputValueError(f"object_mesh: {len(mesh)} meshes for {B} rollouts")
+    groups: dict = {}
+    for b, m in enumerate(mesh):
+        groups.setdefault(id(m), (m, []))[1].append(b)
+    if len(groups) == 1:
+        return _object_capsules(hand, link_poses, object_pose, mesh[0], margin)
+    out = None
+    for m, rows in groups.values():
+        idx = torch.tensor(rows, device=link_poses.device)
+        part = _object_capsules(hand, link_poses[idx], object_pose[idx], m, margin)
+        if out is None:
+            out = [x.new_zeros((B,) + tuple(x.shape[1:])) for x in part]
+        for o, x in zip(out, part):
+            o[idx] = x
+    return tuple(out)
+
+
 def _self_slots(hand, root, fr, pairs: torch.Tensor, margin: float):
     """Finger-finger slots (module docstring): local_a (B, Q, 3), point (B, Q, 3), d0 (B, Q, 3), separation
     (B, Q), active (B, Q) (separation < ``margin``), J (B, 3Q, 6 + D), 0 on inactive pairs."""
@@ -319,17 +343,20 @@ def _self_slots(hand, root, fr, pairs: torch.Tensor, margin: float):
 def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object_pose: torch.Tensor | None = None,
                   plane: TablePlane | None = None, margin: float = 0.005, geometry: str = "samples",
                   object_points: torch.Tensor | None = None, object_mesh=None,
-                  self_pairs: torch.Tensor | None = None) -> Contacts:
+                  self_pairs: torch.Tensor | None = None, object_points_mask: torch.Tensor | None = None) -> Contacts:
     """Contact slots of the hand against an object and/or a fixed plane (module docstring).
 
     hand: HandModel; q: finger joints, (B, D), radians; root: root pose, (B, 4, 4)
     sdf: the object's :class:`~torchhand.geometry.sdf.SDFGrid` (object frame) or None; object_pose: T_world_object, (B, 4, 4)
     plane: :class:`TablePlane` or None; margin: activation distance, metres; geometry: "samples" | "capsules"
         (how plane contacts are found)
-    object_points: the object's support points, (P, 3), object frame, metres (:func:`support_points`), or None;
-        with an object and a plane they add P object-plane slots (module docstring)
-    object_mesh: the object's exact mesh, :class:`~torchhand.check.geometry.ObjectMesh` (object frame), or None;
-        with ``geometry="capsules"`` the object slots come from it (module docstring), and ``sdf`` may be None
+    object_points: the object's support points, (P, 3) or per rollout (B, P, 3), object frame, metres
+        (:func:`support_points`), or None; with an object and a plane they add P object-plane slots (module
+        docstring); object_points_mask: (B, P) bool, the real points where rollouts have fewer (the others never
+        become active), or None (all)
+    object_mesh: the object's exact mesh, :class:`~torchhand.check.geometry.ObjectMesh` (object frame), a sequence
+        of B of them (one object per rollout), or None; with ``geometry="capsules"`` the object slots come from it
+        (module docstring), and ``sdf`` may be None
     self_pairs: finger-finger capsule pairs, (Q, 2) long (:func:`self_pairs`), or None (no finger-finger slots)
     returns: :class:`Contacts` with N = L per counterpart given (+ P object-plane slots, + Q finger-finger slots)
     """
@@ -348,7 +375,7 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     arangeL = torch.arange(L, device=q.device)
     parts = []
     if exact:
-        local, pts, nrm, sep, has = _object_capsules(hand, link_poses, object_pose, object_mesh, margin)
+        local, pts, nrm, sep, has = _object_capsules_of(hand, link_poses, object_pose, object_mesh, margin)
         parts.append((BODY_OBJECT, local, pts, nrm, sep, has))
     elif sdf is not None:
         pen = hand_object_penetration(hand, link_poses, sdf, object_pose)
@@ -376,15 +403,12 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
     J = _jacobian_where(hand, fr, root, link, local, mask).reshape(B, 3 * N, -1)
     J = J * mask.repeat_interleave(3, dim=1)[..., None].to(J.dtype)
     if object_points is not None and has_obj and plane is not None:
-        if not (isinstance(object_points, torch.Tensor) and object_points.dim() == 2 and object_points.shape[1] == 3):
-            raise InputValueError(f"object_points: expected a (P, 3) tensor, got "
-                                  f"{tuple(getattr(object_points, 'shape', ())) or type(object_points).__name__}")
-        P = object_points.shape[0]
+        loc, real = _support_args(object_points, object_points_mask, B, q)
+        P = loc.shape[1]
         n = torch.tensor(plane.normal, dtype=q.dtype, device=q.device)
-        loc = object_points.to(q).expand(B, P, 3)
         pts = _transform(object_pose[:, None], loc)
         s_env = pts @ n - plane.offset
-        m_env = s_env < margin
+        m_env = (s_env < margin) & real
         body = torch.cat([body, torch.full((P,), BODY_OBJECT_ENV, dtype=torch.long, device=q.device)])
         link = torch.cat([link, torch.full((P,), -1, dtype=torch.long, device=q.device)])
         local = torch.cat([local, loc], 1)
@@ -406,6 +430,21 @@ def find_contacts(hand, q: torch.Tensor, root: torch.Tensor, *, sdf=None, object
         J = torch.cat([J, J_self], 1)
     sep = torch.where(mask, sep, torch.zeros_like(sep))
     return Contacts(link, body, local, points, d0, sep, mask, J)
+
+
+def _support_args(points, mask, B: int, like: torch.Tensor):
+    """Support points (P, 3) or (B, P, 3) and their mask (B, P) or None -> (B, P, 3), (B, P) bool."""
+    ok = isinstance(points, torch.Tensor) and points.shape[-1:] == (3,) and (
+        points.dim() == 2 or (points.dim() == 3 and points.shape[0] == B))
+    if not ok:
+        raise InputValueError(f"object_points: expected a (P, 3) or ({B}, P, 3) tensor, got "
+                              f"{tuple(getattr(points, 'shape', ())) or type(points).__name__}")
+    loc = points.to(like).expand(B, *points.shape[-2:])
+    if mask is None:
+        return loc, torch.ones(loc.shape[:2], dtype=torch.bool, device=like.device)
+    if not (isinstance(mask, torch.Tensor) and mask.dtype == torch.bool and tuple(mask.shape) == tuple(loc.shape[:2])):
+        raise InputValueError(f"object_points_mask: expected a bool tensor of shape {tuple(loc.shape[:2])}")
+    return loc, mask.to(like.device)
 
 
 def support_points(vertices, max_points: int = 16, merge: float = 0.002) -> torch.Tensor:

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from .._numerics import record as numerics_record
+from ..errors import InputValueError
 from ._resynth_types import ResynthResult
 
 __all__ = ["solution_arrays", "prepare_result_dir", "write_resynthesis"]
@@ -90,7 +91,12 @@ def prepare_result_dir(out, *, overwrite: bool = False):
 def write_resynthesis(result: ResynthResult, out=None, *, overwrite: bool = False, writer=None) -> Path:
     """Write the result directory: scene/, hand.xml, solutions/sol_XXX.npz (one per completed rollout, in variant
     order), stats.json (``method: "kry_pai"``, every rollout's status, variant and solution index) last; every file
-    atomically. Failed rollouts have no solution file (their frames end at the failed step). returns: the path."""
+    atomically. Failed rollouts have no solution file (their frames end at the failed step). returns: the path.
+    Rollouts with different objects cannot share a directory (the checker judges a result against its scene's one
+    object): write each with ``result.variant_result(i)``."""
+    if len({id(r.variant.object) for r in result.rollouts}) > 1:
+        raise InputValueError("the rollouts have different objects: write one result directory per variant "
+                              "(ResynthResult.variant_result)")
     writer = writer if writer is not None else prepare_result_dir(out, overwrite=overwrite)
     writer.begin(result, result.scene, [result.hand])
     written = []

@@ -23,12 +23,15 @@ __all__ = ["Variant", "expand_variants", "ResynthSettings", "RolloutStatus", "Ro
 
 @dataclass(frozen=True)
 class Variant:
-    """One rollout's changes: mass (kg, None = the scene's), friction (hand-object mu, None = the scene's) and
-    compliance_scale (multiplies the whole C)."""
+    """One rollout's changes: mass (kg, None = the object's), friction (hand-object mu, None = the scene's),
+    compliance_scale (multiplies the whole C) and object (a :class:`~torchhand.geometry.objects.RigidObject` in
+    place of the scene's, at the scene's frame-0 pose; None = the scene's; the rollouts of one batch may each have
+    their own, with exact-mesh contacts)."""
 
     mass: float | None = None
     friction: float | None = None
     compliance_scale: float = 1.0
+    object: object = None
 
     def __post_init__(self):
         if self.mass is not None and not self.mass > 0:
@@ -39,7 +42,8 @@ class Variant:
             raise InputValueError(f"--compliance-scale: expected > 0, got {self.compliance_scale}")
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        return {"mass": self.mass, "friction": self.friction, "compliance_scale": self.compliance_scale,
+                "object": None if self.object is None else self.object.name}
 
 
 def expand_variants(masses=(None,), scales=(1.0,), frictions=(None,)) -> tuple:
@@ -167,7 +171,7 @@ class Rollout:
 class ResynthResult:
     """rollouts: one :class:`Rollout` per variant; scene: the output scene (T frames at 1/h fps, the first
     completed rollout's object and wrist motion and mass); hand: HandModel; fps: 1/h; timings: seconds;
-    settings: :class:`ResynthSettings`; source: the interaction's source"""
+    settings: :class:`ResynthSettings`; source: the interaction's source; scenes: each rollout's output scene"""
 
     rollouts: tuple
     scene: object
@@ -176,3 +180,10 @@ class ResynthResult:
     timings: dict
     settings: ResynthSettings
     source: str = ""
+    scenes: tuple = ()
+
+    def variant_result(self, i: int) -> "ResynthResult":
+        """Rollout ``i`` alone, with its own output scene (its object, mass and motion): the result of one variant,
+        for a result directory of its own (a batch with several objects writes one per variant)."""
+        scene = self.scenes[i] if self.scenes else self.scene
+        return dataclasses.replace(self, rollouts=(self.rollouts[i],), scene=scene, scenes=(scene,))

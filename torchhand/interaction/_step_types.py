@@ -38,6 +38,9 @@ class StepObject:
              is converted), or None. With ``StepSettings.geometry = "capsules"`` the hand-object slots come from the
              links' capsules against it (:mod:`._contacts`), the geometry ``torchhand check`` uses, and ``sdf`` may
              be None; otherwise from the surface samples in ``sdf``
+    rollouts: None, or one StepObject per rollout (:meth:`per_rollout`): B different objects in one batch, each
+             with its own mesh (exact, ``geometry="capsules"``), mass properties, friction and support points; the
+             other fields are then the first rollout's
     """
 
     sdf: object
@@ -49,8 +52,11 @@ class StepObject:
     masses: tuple | None = None
     mus: tuple | None = None
     mesh: object = None
+    rollouts: tuple | None = None
 
     def __post_init__(self):
+        if self.rollouts is not None:
+            self._check_rollouts()
         if self.mesh is not None and not hasattr(self.mesh, "hull_distance_bound"):
             from ..check.geometry import object_mesh
 
@@ -85,13 +91,79 @@ class StepObject:
         return cls(sdf, float(obj.mass), tuple(obj.com), tuple(map(tuple, obj.inertia)), mu, support, masses, mus,
                    mesh)
 
+    @classmethod
+    def per_rollout(cls, objects) -> "StepObject":
+        """One object per rollout (the ``rollouts`` field): ``objects`` are single StepObjects (no ``masses``,
+        ``mus`` or ``rollouts`` of their own), each with its exact ``mesh``; equal objects may be the same one."""
+        objects = tuple(objects)
+        if not objects:
+            raise InputValueError("StepObject.per_rollout: at least one object is needed")
+        first = objects[0]
+        return cls(first.sdf, first.mass, first.com, first.inertia, first.mu, first.support, None, None, first.mesh,
+                   objects)
+
+    def _check_rollouts(self) -> None:
+        objs = self.rollouts
+        if self.masses is not None or self.mus is not None:
+            raise InputValueError("StepObject: give masses and frictions through its per-rollout objects")
+        for o in objs:
+            if not isinstance(o, StepObject) or o.rollouts is not None or o.masses is not None or o.mus is not None:
+                raise InputValueError("StepObject.rollouts: expected single StepObjects, one per rollout")
+            if o.mesh is None:
+                raise InputValueError("StepObject.rollouts: each rollout's object needs its exact mesh")
+        if len({o.support is None for o in objs}) > 1:
+            raise InputValueError("StepObject.rollouts: give support points for every rollout's object or none")
+
+    def _rollout_count(self, B: int) -> None:
+        if self.rollouts is not None and len(self.rollouts) != B:
+            raise InputValueError(f"StepObject.rollouts: {len(self.rollouts)} objects for {B} rollouts")
+
     def mass_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
         """Masses, (B,), kg."""
+        if self.rollouts is not None:
+            self._rollout_count(B)
+            return torch.tensor([o.mass for o in self.rollouts], dtype=like.dtype, device=like.device)
         return self._per_rollout(self.masses, self.mass, "masses", B, like)
 
     def mu_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
         """Hand-object friction coefficients, (B,)."""
+        if self.rollouts is not None:
+            self._rollout_count(B)
+            return torch.tensor([o.mu for o in self.rollouts], dtype=like.dtype, device=like.device)
         return self._per_rollout(self.mus, self.mu, "mus", B, like)
+
+    def com_per_rollout(self, B: int, like: torch.Tensor) -> torch.Tensor:
+        """Centres of mass, (B, 3), object frame, metres."""
+        if self.rollouts is not None:
+            self._rollout_count(B)
+            return torch.tensor([o.com for o in self.rollouts], dtype=like.dtype, device=like.device)
+        return torch.tensor(self.com, dtype=like.dtype, device=like.device).expand(B, 3)
+
+    def meshes(self, B: int) -> tuple:
+        """The exact mesh of each rollout's object, (B,) (the same object where the rollouts share it)."""
+        if self.rollouts is not None:
+            self._rollout_count(B)
+            return tuple(o.mesh for o in self.rollouts)
+        return (self.mesh,) * B
+
+    def support_per_rollout(self, B: int, like: torch.Tensor):
+        """Support points (B, P, 3), object frames, padded to the most points, and which are real, (B, P) bool; or
+        None without support points."""
+        if self.support is None:
+            return None
+        if self.rollouts is None:
+            P = self.support.shape[0]
+            return (self.support.to(like).expand(B, P, 3),
+                    torch.ones(B, P, dtype=torch.bool, device=like.device))
+        self._rollout_count(B)
+        P = max(o.support.shape[0] for o in self.rollouts)
+        pts = like.new_zeros(B, P, 3)
+        real = torch.zeros(B, P, dtype=torch.bool, device=like.device)
+        for b, o in enumerate(self.rollouts):
+            n = o.support.shape[0]
+            pts[b, :n] = o.support.to(like)
+            real[b, :n] = True
+        return pts, real
 
     @staticmethod
     def _per_rollout(values, default, name, B, like):
@@ -103,12 +175,20 @@ class StepObject:
 
     def body_frame(self, object_pose: torch.Tensor) -> torch.Tensor:
         """E_wb = T_world_object @ T(com): the body frame at the centre of mass with the object's axes, (B, 4, 4)."""
+        B = object_pose.shape[0]
         T = torch.eye(4, dtype=object_pose.dtype, device=object_pose.device)
-        T[:3, 3] = torch.tensor(self.com, dtype=object_pose.dtype, device=object_pose.device)
+        if self.rollouts is None:
+            T[:3, 3] = self.com_per_rollout(1, object_pose)[0]
+        else:
+            T = T.repeat(B, 1, 1)
+            T[:, :3, 3] = self.com_per_rollout(B, object_pose)
         return object_pose @ T
 
     def spatial_inertia(self, B: int, like: torch.Tensor) -> torch.Tensor:
-        """M = diag(I_com, m I3), (B, 6, 6), kg m^2 / kg (per rollout with ``masses``)."""
+        """M = diag(I_com, m I3), (B, 6, 6), kg m^2 / kg (per rollout with ``masses`` or ``rollouts``)."""
+        if self.rollouts is not None:
+            self._rollout_count(B)
+            return torch.stack([o.spatial_inertia(1, like)[0] for o in self.rollouts])
         M = torch.zeros(6, 6, dtype=like.dtype, device=like.device)
         M[:3, :3] = torch.tensor(self.inertia, dtype=like.dtype, device=like.device)
         M[3:, 3:] = self.mass * torch.eye(3, dtype=like.dtype, device=like.device)

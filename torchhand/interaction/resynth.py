@@ -122,10 +122,17 @@ def _step_time(inter: Interaction, scene, variants, settings: ResynthSettings) -
 
 
 def _environment(scene, variants: tuple, settings: ResynthSettings, dtype: torch.dtype):
-    """Stage 2: the scene's object with each variant's mass and friction, and its table (or None).
+    """Stage 2: the scene's object (or each variant's own) with each variant's mass and friction, and its table (or
+    None).
 
     returns: (:class:`~torchhand.interaction.step.StepObject`, :class:`TablePlane` or None)
     """
+    scene.environment.require_plain("resynthesis")
+    env = None
+    if scene.environment.table:
+        env = TablePlane((0.0, 0.0, 1.0), scene.environment.table_height, scene.environment.friction)
+    if any(v.object is not None for v in variants):
+        return _objects_per_rollout(scene, variants, settings, dtype, env), env
     from ..geometry.sdf import SDFGrid
 
     rigid = scene.object
@@ -133,15 +140,33 @@ def _environment(scene, variants: tuple, settings: ResynthSettings, dtype: torch
         sdf, mesh = None, True
     else:
         sdf, mesh = SDFGrid.from_mesh(rigid.mesh, settings.sdf_voxel, progress=False).to("cpu", dtype), None
-    scene.environment.require_plain("resynthesis")
-    env = None
-    if scene.environment.table:
-        env = TablePlane((0.0, 0.0, 1.0), scene.environment.table_height, scene.environment.friction)
     sup = support_points(rigid.mesh.vertices, settings.support_points).to(dtype) if env is not None else None
     masses = tuple(rigid.mass if v.mass is None else v.mass for v in variants)
     mus = tuple(scene.friction if v.friction is None else v.friction for v in variants)
     obj = StepObject.from_rigid(rigid, sdf, scene.friction, support=sup, masses=masses, mus=mus, mesh=mesh)
     return obj, env
+
+
+def _objects_per_rollout(scene, variants: tuple, settings: ResynthSettings, dtype: torch.dtype, env) -> StepObject:
+    """One StepObject per variant (its object or the scene's, at its mass and friction); each distinct object's
+    exact mesh and support points are made once and shared by the rollouts that use it."""
+    from ..check.geometry import object_mesh
+
+    if settings.object_contacts != "mesh":
+        raise InputValueError("variants with their own objects need exact-mesh contacts (--object-contacts mesh)")
+    shared: dict = {}
+    objects = []
+    for v in variants:
+        rigid = scene.object if v.object is None else v.object
+        if id(rigid) not in shared:
+            sup = support_points(rigid.mesh.vertices, settings.support_points).to(dtype) if env is not None else None
+            shared[id(rigid)] = (object_mesh(rigid.mesh, float(rigid.mass)), sup)
+        mesh, sup = shared[id(rigid)]
+        m = rigid.mass if v.mass is None else v.mass
+        inertia = np.asarray(rigid.inertia, dtype=np.float64) * (m / rigid.mass)
+        objects.append(StepObject(None, float(m), tuple(rigid.com), inertia,
+                                  scene.friction if v.friction is None else v.friction, sup, mesh=mesh))
+    return StepObject.per_rollout(objects)
 
 
 def _step_settings(settings: ResynthSettings, scene, h: float, B: int) -> StepSettings:
@@ -188,19 +213,19 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
                    grip=settings.grip, settle_steps=settings.settle_steps, progress=progress)
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
-    com = np.asarray(scene.object.com, dtype=np.float64)
-    rollouts = tuple(rollout_result(rec, b, variants[b], ref.theta_r, com, hold) for b in range(B))
-    first = next((r for r in rollouts if r.ok), rollouts[0])
-    out_scene = _output_scene(scene, first, 1.0 / h)
+    com = lambda v: np.asarray((scene.object if v.object is None else v.object).com, dtype=np.float64)  # noqa: E731
+    rollouts = tuple(rollout_result(rec, b, variants[b], ref.theta_r, com(variants[b]), hold) for b in range(B))
+    scenes = tuple(_output_scene(scene, r, 1.0 / h) for r in rollouts)
+    first = next((i for i, r in enumerate(rollouts) if r.ok), 0)
     timings = {"simulate_s": t_sim, "per_step_ms": 1e3 * rec.step_time_s, "total_s": time.perf_counter() - t_start}
-    return ResynthResult(rollouts, out_scene, hand, 1.0 / h, timings, settings, inter.source)
+    return ResynthResult(rollouts, scenes[first], hand, 1.0 / h, timings, settings, inter.source, scenes)
 
 
 def _output_scene(scene, rollout: Rollout, fps: float):
     """The scene of the result directory: the rollout's object and wrist motion, its mass, fps 1/h."""
     from ..scene import HandTrack
 
-    obj = scene.object
+    obj = scene.object if rollout.variant.object is None else rollout.variant.object
     m = rollout.variant.mass
     if m is not None and m != obj.mass:
         obj = dataclasses.replace(obj, mass=float(m), inertia=np.asarray(obj.inertia) * (m / obj.mass))
