@@ -122,6 +122,35 @@ def turn_and_lift(object_pose: np.ndarray) -> tuple[float, float]:
             1e3 * float(object_pose[-1, 2, 3] - object_pose[0, 2, 3]))
 
 
+def turn_lag(object_pose: np.ndarray, dt: float, ref_pose: np.ndarray, ref_fps: float) -> tuple[float, float]:
+    """How far the object's turn (the rotation angle since the first frame) trails the reference's at the same time:
+    (largest lag, lag at the last frame), degrees (the reference interpolated linearly in its frames)."""
+    from scipy.spatial.transform import Rotation
+
+    def angles(P):
+        rel = P[:, :3, :3] @ P[0, :3, :3].T
+        return np.degrees(np.linalg.norm(Rotation.from_matrix(rel).as_rotvec(), axis=-1))
+
+    t = np.arange(len(object_pose)) * dt * ref_fps
+    ref = np.interp(t, np.arange(len(ref_pose)), angles(ref_pose))
+    lag = ref - angles(object_pose)
+    return float(lag.max()), float(lag[-1])
+
+
+def contacts_per_finger(sol, min_force: float = 0.2) -> str:
+    """Per finger (its links' name prefix: palm, thumb, index, ...), the share of frames where one of its links
+    pushes the object with more than ``min_force`` newtons, e.g. "palm 12% thumb 42% index 0%"."""
+    names = sol.contact_link_names()
+    f = np.linalg.norm(sol.contact_force, axis=-1) * sol.contact_mask              # (T, Nc)
+    link = np.asarray(sol.contact_link)
+    per: dict = {}
+    for i, name in enumerate(names):
+        finger = name.split("_")[0]
+        per.setdefault(finger, np.zeros(sol.T, dtype=bool))
+        per[finger] |= ((link == i) & (f > min_force)).any(-1)
+    return " ".join(f"{k} {100 * v.mean():.0f}%" for k, v in per.items())
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, help="output folder (inputs and one result directory per case)")
@@ -192,13 +221,15 @@ def main(argv=None) -> int:
              ("heavy", base, ["--mass", heavy, *box], "none"),
              ("heavy-imminent", base, ["--mass", heavy, *box], "imminent"),
              ("bunny", bunny, settle, "none")]
-    ref = load_result(result).solution(args.solution)
+    ref_result = load_result(result)
+    ref, ref_fps = ref_result.solution(args.solution), ref_result.scene.fps
     use = reference_friction_use(result, args.solution, frames)
     margin = json.loads((inferred / "summary.json").read_text()).get("friction_margin") or {}
     a, b = (int(x) for x in frames.split(":"))
     ref_turn, ref_lift = turn_and_lift(ref.object_pose[a:b])
-    rows = [("case", "kg", "grip", "turn deg (ref)", "lift mm (ref)", "max slip mm", "grip events", "ms/step",
-             "check", "worst: obj pen mm / cone / force / torque", "failing figures")]
+    rows = [("case", "kg", "grip", "turn deg (ref)", "lag deg max / end", "lift mm (ref)", "max slip mm",
+             "grip events", "ms/step", "check", "worst: obj pen mm / cone / force / torque", "failing figures",
+             "frames with a contact > 0.2 N, per finger")]
     summary = {}
     for name, scene_dir, extra, grip in cases:
         dest = out / name
@@ -208,8 +239,8 @@ def main(argv=None) -> int:
         roll = (stats.get("rollouts") or [{}])[0]
         kg = extra[1] if extra[:1] == ["--mass"] else f"{mass:g}"
         if rc != 0 or roll.get("status") != "COMPLETED":
-            rows.append((name, kg, grip, "-", "-", "-", "-", f"{stats.get('per_step_ms', float('nan')):.1f}",
-                         f"stopped at step {roll.get('failed_step')} ({roll.get('failed_status')})", "-", "-"))
+            rows.append((name, kg, grip, "-", "-", "-", "-", "-", f"{stats.get('per_step_ms', float('nan')):.1f}",
+                         f"stopped at step {roll.get('failed_step')} ({roll.get('failed_status')})", "-", "-", "-"))
             summary[name] = {"completed": False, "rollout": roll}
             continue
         res = load_result(dest)
@@ -221,11 +252,14 @@ def main(argv=None) -> int:
         failing = [n for n, x in f.items() if not x.ok]
         worst = (f"{1e3 * f['object_penetration_m'].value:.1f} / {f['cone_violation'].value:.1e} / "
                  f"{f['force_error'].value:.4f} / {f['torque_error'].value:.4f}")
-        rows.append((name, kg, grip, f"{turn:.1f} ({ref_turn:.1f})", f"{lift:.1f} ({ref_lift:.1f})",
-                     f"{1e3 * roll['max_object_slip_m']:.1f}", str(roll["grip_events"]),
-                     f"{stats['per_step_ms']:.1f}", "pass" if sc.passed else "FAIL", worst,
-                     ", ".join(failing) or "-"))
-        summary[name] = {"completed": True, "turn_deg": turn, "lift_mm": lift, "ref_turn_deg": ref_turn,
+        lag_max, lag_end = turn_lag(sol.object_pose, args.dt, ref.object_pose[a:b], float(ref_fps))
+        fingers = contacts_per_finger(sol)
+        rows.append((name, kg, grip, f"{turn:.1f} ({ref_turn:.1f})", f"{lag_max:.1f} / {lag_end:.1f}",
+                     f"{lift:.1f} ({ref_lift:.1f})", f"{1e3 * roll['max_object_slip_m']:.1f}",
+                     str(roll["grip_events"]), f"{stats['per_step_ms']:.1f}", "pass" if sc.passed else "FAIL", worst,
+                     ", ".join(failing) or "-", fingers))
+        summary[name] = {"completed": True, "turn_deg": turn, "lag_deg_max": lag_max, "lag_deg_end": lag_end,
+                         "contacts_per_finger": fingers, "lift_mm": lift, "ref_turn_deg": ref_turn,
                          "max_slip_mm": 1e3 * roll["max_object_slip_m"], "grip_events": roll["grip_events"],
                          "per_step_ms": stats["per_step_ms"], "check_passed": sc.passed,
                          "figures": {n: {"value": x.value, "limit": x.limit, "frame": x.frame, "where": x.where}
