@@ -90,7 +90,9 @@ def test_option_tables_are_the_commands_flags_with_their_defaults(method, table)
         assert default == spec.default, (method, name, default, spec.default)
         if spec.choices:
             assert tuple(flags[spec.flag].choices) == spec.choices, (method, name)
-    inputs = {"--grasp", "--scene", "--out", "--overwrite", "--threads", "--device", "--no-progress", "-h", "--help"}
+    # --variants (capture): a file of named variants, the command line's alternative to a manifest's option lists
+    inputs = {"--grasp", "--scene", "--out", "--overwrite", "--threads", "--device", "--no-progress", "-h", "--help",
+              "--variants"}
     options = {spec.flag for spec in table.values()}
     assert set(flags) - inputs == options, (method, set(flags) - inputs ^ options)
     for flag in ("--device", "--no-progress"):

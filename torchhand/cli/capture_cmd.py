@@ -119,7 +119,7 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
     r.add_argument("--overwrite", action="store_true", help="replace an earlier result in --out")
     r.add_argument("--dt", type=float, default=None, metavar="S", help="step h, s (default 1/fps of the scene)")
     r.add_argument("--mass", default=None, metavar="KG[,KG...]", help="object masses, one rollout each")
-    r.add_argument("--compliance-scale", default=None, metavar="S[,S...]", help="scales of the compliance C (1)")
+    r.add_argument("--compliance-scale", default="1", metavar="S[,S...]", help="scales of the compliance C (1)")
     r.add_argument("--friction", default=None, metavar="MU[,MU...]", help="hand-object friction coefficients")
     r.add_argument("--variants", default=None, metavar="FILE",
                    help="a TOML file of named variants (object, mass, friction, compliance scale), all rollouts of "
@@ -249,8 +249,7 @@ def _resynthesize_grid(args, settings) -> int:
                                                resynthesize, write_resynthesis)
     from torchhand.scene import load_scene
 
-    variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale or "1",
-                                                                     "--compliance-scale"),
+    variants = expand_variants(_floats(args.mass, "--mass"), _floats(args.compliance_scale, "--compliance-scale"),
                                _floats(args.friction, "--friction"))
     writer = prepare_result_dir(args.out, overwrite=args.overwrite)
     try:
@@ -276,7 +275,7 @@ def _resynthesize_variant_file(args, settings) -> int:
                                                write_resynthesis)
     from torchhand.scene import load_scene
 
-    if args.mass is not None or args.friction is not None or args.compliance_scale is not None:
+    if args.mass is not None or args.friction is not None or args.compliance_scale.strip() != "1":
         raise InputValueError("--variants: give masses, frictions and compliance scales in the file, not with "
                               "--mass, --friction or --compliance-scale")
     inter = load_interaction(args.interaction)
