@@ -343,6 +343,28 @@ def test_cli_variant_file_writes_one_checked_result_per_object(tmp_path):
     assert _cli([*args[2:], "--out", str(tmp_path / "bad"), "--variants", str(spec), "--mass", "0.1"]) == 2
 
 
+def test_variant_file_shares_an_object_named_twice(tmp_path):
+    """Variants that name one mesh file (by different relative paths) get one object, so that the step queries its
+    mesh once for both; a scene directory gives its object; defaults are None (the scene's) and scale 1."""
+    from torchhand.interaction._variant_spec import load_variant_file
+    from torchhand.scene import load_scene
+
+    scene_dir, _ = pinch_files(tmp_path / "in")
+    scene = load_scene(scene_dir)
+    (tmp_path / "meshes").mkdir()
+    trimesh.creation.cylinder(radius=0.017, height=0.06, sections=24).export(tmp_path / "meshes" / "cyl.stl")
+    spec = tmp_path / "v.toml"
+    spec.write_text('[[variant]]\nname = "a"\nobject = "meshes/cyl.stl"\nmass = 0.1\n\n'
+                    '[[variant]]\nname = "b"\nobject = "./meshes/../meshes/cyl.stl"\ncompliance_scale = 2\n\n'
+                    f'[[variant]]\nname = "c"\nobject = "{scene_dir.relative_to(tmp_path)}"\n\n'
+                    '[[variant]]\nname = "d"\n')
+    (na, a), (nb, b), (nc, c), (nd, d) = load_variant_file(spec, scene)
+    assert (na, nb, nc, nd) == ("a", "b", "c", "d")
+    assert a.object is b.object and a.object.mass == pytest.approx(scene.object.mass)
+    assert (a.mass, b.mass, b.compliance_scale, a.friction) == (0.1, None, 2.0, None)
+    assert c.object.name == scene.object.name and d.object is None and d.compliance_scale == 1.0
+
+
 def _cli(args) -> int:
     from torchhand.cli import main
 
