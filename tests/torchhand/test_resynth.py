@@ -341,6 +341,11 @@ def test_cli_variant_file_writes_one_checked_result_per_object(tmp_path):
         assert not (tmp_path / "bad").exists()
     spec.write_text('[[variant]]\nname = "a"\n')
     assert _cli([*args[2:], "--out", str(tmp_path / "bad"), "--variants", str(spec), "--mass", "0.1"]) == 2
+    # found after the result directories were claimed: they are given back, and the folder made for them too
+    spec.write_text('[[variant]]\nname = "a"\nobject = "cyl.stl"\n')
+    assert _cli([*args[2:], "--out", str(tmp_path / "bad"), "--variants", str(spec), "--object-contacts",
+                 "sdf"]) == 2
+    assert not (tmp_path / "bad").exists()
 
 
 def test_variant_file_shares_an_object_named_twice(tmp_path):

@@ -281,22 +281,26 @@ def _resynthesize_variant_file(args, settings) -> int:
     inter = load_interaction(args.interaction)
     scene = load_scene(args.scene)
     named = load_variant_file(args.variants, scene)
+    out = Path(args.out)
+    created = not out.exists()
     writers = []
     try:
         for name, _ in named:
-            writers.append(prepare_result_dir(Path(args.out) / name, overwrite=args.overwrite))
+            writers.append(prepare_result_dir(out / name, overwrite=args.overwrite))
         result = resynthesize(inter, scene, variants=tuple(v for _, v in named), settings=settings,
                               progress=_progress_line)
     except BaseException:
         for w in writers:
             w.abandon()
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()                 # the folder this run made, left empty
         raise
     for i, w in enumerate(writers):
         write_resynthesis(result.variant_result(i), writer=w)
     _print_rollouts(result, scene, [name for name, _ in named])
     ok = sum(r.ok for r in result.rollouts)
     print(f"{ok}/{len(result.rollouts)} variants completed, {result.timings['per_step_ms']:.1f} ms per step "
-          f"(one batch); wrote {len(writers)} result directories under {args.out}")
+          f"(one batch); wrote {len(writers)} result director{'y' if len(writers) == 1 else 'ies'} under {args.out}")
     return 0 if ok else 1
 
 
