@@ -307,7 +307,7 @@ def _resynthesize_variant_file(args, settings) -> int:
 def _print_rollouts(result, scene, labels) -> None:
     for label, r in zip(labels, result.rollouts):
         v = r.variant
-        obj = scene.object if v.object is None else v.object
+        obj = v.object_of(scene)
         line = (f"{label} ({obj.name}, mass {v.mass if v.mass is not None else obj.mass:g} kg, friction "
                 f"{v.friction if v.friction is not None else scene.friction:g}, compliance x{v.compliance_scale:g}): ")
         if r.ok:

@@ -41,6 +41,10 @@ class Variant:
         if not self.compliance_scale > 0:
             raise InputValueError(f"--compliance-scale: expected > 0, got {self.compliance_scale}")
 
+    def object_of(self, scene):
+        """The rollout's object: its own, or the scene's."""
+        return scene.object if self.object is None else self.object
+
     def as_dict(self) -> dict:
         return {"mass": self.mass, "friction": self.friction, "compliance_scale": self.compliance_scale,
                 "object": None if self.object is None else self.object.name}

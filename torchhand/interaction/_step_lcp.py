@@ -55,8 +55,9 @@ class StepTerms:
     dth: J's input dtheta_r + theta_err, (B, 6 + D); D: pyramid directions, (B, N, 3, K); mu: friction per slot,
     (B, N); f_k: f^k, (B, 3N), newtons; s_prime: (B, N, K), metres (0 on inactive slots); rigid:
     :class:`RigidTerms` or None.
-    Over the active slots: order: slot index of each, (B, Na) long; mask_c: (B, Na) bool; G: J C J^T,
-    (B, 3Na, 3Na), m/N; U, u: the object's signed U_phi (B, 3Na, 3Na) and u_phi (B, 3Na) (zero without an object)
+    Over the active slots: order: slot index of each, (B, Na) long; mask_c: (B, Na) bool; J_c: their Jacobian
+    rows, (B, 3Na, 6 + D); G: J C J^T, (B, 3Na, 3Na), m/N; U, u: the object's signed U_phi (B, 3Na, 3Na) and
+    u_phi (B, 3Na) (zero without an object)
     """
 
     contacts: Contacts
@@ -71,6 +72,7 @@ class StepTerms:
     rigid: RigidTerms | None
     order: torch.Tensor
     mask_c: torch.Tensor
+    J_c: torch.Tensor
     G: torch.Tensor
     U: torch.Tensor
     u: torch.Tensor
@@ -169,7 +171,7 @@ def step_terms(state: StepState, theta_r_next: torch.Tensor, root_r_next: torch.
     sp_c = kry_pai_s_prime(Dfull.gather(1, order[..., None, None].expand(-1, -1, 3, K)), c.separation.gather(1, order),
                            G=G, f_k=fk.gather(1, idx), J=J_c, dtheta_r=dth, u_phi=u)
     sp = _scatter(sp_c, order, mask_c, N)
-    return StepTerms(c, on_tab, on_body, sign, dth, Dfull, mu, fk, sp, rigid, order, mask_c, G, U, u)
+    return StepTerms(c, on_tab, on_body, sign, dth, Dfull, mu, fk, sp, rigid, order, mask_c, J_c, G, U, u)
 
 
 def _rows(order: torch.Tensor) -> torch.Tensor:
@@ -243,7 +245,6 @@ def predicted_motion(terms: StepTerms, f_next: torch.Tensor, settings: StepSetti
     order, idx = terms.order, _rows(terms.order)
     G, U, u = terms.G, terms.U, terms.u
     f = f_next.reshape(B, -1).gather(1, idx)
-    J_c = terms.contacts.J.gather(1, idx[..., None].expand(-1, -1, terms.contacts.J.shape[2]))
-    du = ((G @ (f - terms.f_k.gather(1, idx))[..., None]).squeeze(-1) + (J_c @ terms.dth[..., None]).squeeze(-1)
+    du = ((G @ (f - terms.f_k.gather(1, idx))[..., None]).squeeze(-1) + (terms.J_c @ terms.dth[..., None]).squeeze(-1)
           + _env_compliance(terms, settings, f_next) * f - (U @ f[..., None]).squeeze(-1) - u)
     return _scatter(du.reshape(B, -1, 3), order, terms.mask_c, N)

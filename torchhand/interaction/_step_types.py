@@ -173,16 +173,20 @@ class StepObject:
             raise InputValueError(f"StepObject.{name}: {len(values)} values for {B} rollouts")
         return torch.tensor(values, dtype=like.dtype, device=like.device)
 
+    def com_shift(self, B: int, like: torch.Tensor, sign: float = 1.0) -> torch.Tensor:
+        """T(sign com): the translation by the centre of mass (sign -1: back), (4, 4), or (B, 4, 4) with an object
+        per rollout."""
+        T = torch.eye(4, dtype=like.dtype, device=like.device)
+        if self.rollouts is None:
+            T[:3, 3] = sign * self.com_per_rollout(1, like)[0]
+            return T
+        T = T.repeat(B, 1, 1)
+        T[:, :3, 3] = sign * self.com_per_rollout(B, like)
+        return T
+
     def body_frame(self, object_pose: torch.Tensor) -> torch.Tensor:
         """E_wb = T_world_object @ T(com): the body frame at the centre of mass with the object's axes, (B, 4, 4)."""
-        B = object_pose.shape[0]
-        T = torch.eye(4, dtype=object_pose.dtype, device=object_pose.device)
-        if self.rollouts is None:
-            T[:3, 3] = self.com_per_rollout(1, object_pose)[0]
-        else:
-            T = T.repeat(B, 1, 1)
-            T[:, :3, 3] = self.com_per_rollout(B, object_pose)
-        return object_pose @ T
+        return object_pose @ self.com_shift(object_pose.shape[0], object_pose)
 
     def spatial_inertia(self, B: int, like: torch.Tensor) -> torch.Tensor:
         """M = diag(I_com, m I3), (B, 6, 6), kg m^2 / kg (per rollout with ``masses`` or ``rollouts``)."""

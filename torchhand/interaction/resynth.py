@@ -157,7 +157,7 @@ def _objects_per_rollout(scene, variants: tuple, settings: ResynthSettings, dtyp
     shared: dict = {}
     objects = []
     for v in variants:
-        rigid = scene.object if v.object is None else v.object
+        rigid = v.object_of(scene)
         if id(rigid) not in shared:
             sup = support_points(rigid.mesh.vertices, settings.support_points).to(dtype) if env is not None else None
             shared[id(rigid)] = (object_mesh(rigid.mesh, float(rigid.mass)), sup)
@@ -213,8 +213,8 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
                    grip=settings.grip, settle_steps=settings.settle_steps, progress=progress)
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
-    com = lambda v: np.asarray((scene.object if v.object is None else v.object).com, dtype=np.float64)  # noqa: E731
-    rollouts = tuple(rollout_result(rec, b, variants[b], ref.theta_r, com(variants[b]), hold) for b in range(B))
+    rollouts = tuple(rollout_result(rec, b, v, ref.theta_r, np.asarray(v.object_of(scene).com, dtype=np.float64),
+                                    hold) for b, v in enumerate(variants))
     scenes = tuple(_output_scene(scene, r, 1.0 / h) for r in rollouts)
     first = next((i for i, r in enumerate(rollouts) if r.ok), 0)
     timings = {"simulate_s": t_sim, "per_step_ms": 1e3 * rec.step_time_s, "total_s": time.perf_counter() - t_start}
@@ -225,7 +225,7 @@ def _output_scene(scene, rollout: Rollout, fps: float):
     """The scene of the result directory: the rollout's object and wrist motion, its mass, fps 1/h."""
     from ..scene import HandTrack
 
-    obj = scene.object if rollout.variant.object is None else rollout.variant.object
+    obj = rollout.variant.object_of(scene)
     m = rollout.variant.mass
     if m is not None and m != obj.mass:
         obj = dataclasses.replace(obj, mass=float(m), inertia=np.asarray(obj.inertia) * (m / obj.mass))

@@ -83,9 +83,7 @@ def _find_slots(hand, q, root, object_pose, obj, env, settings) -> Contacts:
     """The contact slots at (q, root, object_pose) (step 1 / step 9)."""
     B = q.shape[0]
     support = None if obj is None else obj.support_per_rollout(B, q)
-    mesh = None
-    if obj is not None and obj.mesh is not None:
-        mesh = obj.meshes(B) if obj.rollouts is not None else obj.mesh
+    mesh = None if obj is None or obj.mesh is None else obj.meshes(B)     # rollouts sharing a mesh share its queries
     return find_contacts(hand, q, root, sdf=None if obj is None else obj.sdf,
                          object_pose=object_pose if obj is not None else None, plane=env, margin=settings.margin,
                          geometry=settings.geometry, object_points=None if support is None else support[0],
@@ -223,13 +221,7 @@ def _advance(state: StepState, hand, terms: StepTerms, f_next: torch.Tensor, the
         rigid = terms.rigid
         body = integrate_object(rigid.E_wb, state.phi, rigid.Mb, c.points, -terms.sign[:, None] * f_next, settings.h,
                                 rigid.w_ext, terms.on_body)
-        Tinv = torch.eye(4, dtype=like.dtype, device=like.device)
-        if obj.rollouts is None:
-            Tinv[:3, 3] = -obj.com_per_rollout(1, like)[0]
-        else:
-            Tinv = Tinv.repeat(B, 1, 1)
-            Tinv[:, :3, 3] = -obj.com_per_rollout(B, like)
-        phi_next, pose_next = body.phi, body.E @ Tinv
+        phi_next, pose_next = body.phi, body.E @ obj.com_shift(B, like, -1.0)
     else:
         phi_next, pose_next = state.phi, state.object_pose
     delta = C * _generalized_force(c.J, f_next)
