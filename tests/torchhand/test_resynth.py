@@ -271,6 +271,7 @@ def test_cli_writes_a_result_the_checker_reads(tmp_path):
     assert sol["joint_clamp"].shape == (T,) and sol["joint_clamp"][0] == 0
     assert stats["rollouts"][0]["joint_clamp_frames"] == int((sol["joint_clamp"] > 1e-9).sum())
     assert stats["settings"]["object_contacts"] == "mesh" and stats["settings"]["self_contacts"]
+    assert stats["settings"]["finger_friction"] == 0.0
     assert sol["slip_ratio"].shape == sol["contact_mask"].shape
     assert res.solution(0).q.shape == (res.scene.T, 4)
     report = check_result(out)
@@ -383,6 +384,7 @@ def test_cli_bad_inputs(tmp_path, capsys):
     assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--mass", "0.1,abc"]) == 2
     assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--mass", "-1"]) == 2
     assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--dt", "0.5"]) == 2
+    assert _cli([str(inter), "--scene", str(scene_dir), "--out", out, "--finger-friction", "-0.5"]) == 2
     assert _cli([str(inter), "--scene", "box-pickup", "--out", out]) == 2          # joints of another hand
     (tmp_path / "file").write_text("x")
     assert _cli([str(inter), "--scene", str(scene_dir), "--out", str(tmp_path / "file")]) == 2

@@ -101,6 +101,17 @@ def test_finger_finger_slots_stop_fingers_at_touch():
     assert f.norm(dim=-1).max() > 0.1
     slots = torch.nonzero(selfs).flatten()
     # the force is along d0 (frictionless) and the joint deflection is C (J_a - J_b)^T f, J from MuJoCo
+    for n in slots.tolist():
+        fn = s.forces[0, n]
+        assert torch.linalg.cross(fn, s.contacts.d0[0, n]).norm() <= 1e-9 * max(float(fn.norm()), 1.0)
+    _deflection_is_mujoco_jacobian_transpose(hand, s, slots, C, root, m, d)
+
+
+def _deflection_is_mujoco_jacobian_transpose(hand, s, slots, C, root, m, d):
+    """theta - theta_r = C (J_a - J_b)^T f over the finger-finger slots, J from MuJoCo's mj_jac at the two surface
+    points (the root is rigid in these tests), within 1e-9 rad."""
+    import mujoco
+
     tau = np.zeros(4)
     d.qpos[:] = s.q.numpy()[0]
     mujoco.mj_forward(m, d)
@@ -108,7 +119,6 @@ def test_finger_finger_slots_stop_fingers_at_touch():
     for n in slots.tolist():
         fn = s.forces[0, n]
         d0 = s.contacts.d0[0, n]
-        assert torch.linalg.cross(fn, d0).norm() <= 1e-9 * max(float(fn.norm()), 1.0)
         q = n - (len(s.contacts.body) - len(pairs))
         a, b = (int(x) for x in pairs[q])
         ra, rb = float(hand.capsule_radius[a]), float(hand.capsule_radius[b])
@@ -123,6 +133,50 @@ def test_finger_finger_slots_stop_fingers_at_touch():
             tau += sign * jacp.T @ fn.numpy()
     dq = (s.q - s.theta_r)[0].numpy()
     np.testing.assert_allclose(dq, C[0, 6:].numpy() * tau, atol=1e-9)
+
+
+def _pinch_closed(hand, target, mu: float, steps: int = 30):
+    """The pinch hand (root rigid, 10 cm up, no table) driven to ``target`` over 10 steps and held, finger-finger
+    friction ``mu``: the last state and the compliance."""
+    env = TablePlane(offset=-1.0)
+    root = _pose(z=0.1)
+    C = torch.tensor([[0.0] * 6 + [1.0, 2.0, 1.0, 2.0]], dtype=F64)
+    settings = StepSettings(geometry="capsules", self_contacts=True, self_mu=mu)
+    state = initial_state(hand, torch.zeros(1, 4, dtype=F64), root, env=env, settings=settings)
+    for k in range(1, steps + 1):
+        state, rep = quasi_static_step(state, hand, target * min(1.0, k / 10), root, C, None, env, settings)
+        assert int(rep.status[0]) == 0
+    return state, C, root
+
+
+def test_finger_finger_friction_holds_fingers_that_would_slide():
+    """Asymmetric references press the pinch's fingertips together with a shear (the left finger's reference bends
+    at its base, the right one's at its tip). Frictionless, the force is normal and the tips slide past each other.
+    With friction 0.5 the contact sticks: a tangential force of 0.19 f_n appears (inside the cone, so not sliding),
+    the fingers stop elsewhere, and the joints still deflect by C (J_a - J_b)^T f with MuJoCo's Jacobians. With
+    friction 0.1, below what sticking needs, the tangential force sits at the friction pyramid's limit (slip)."""
+    mujoco = pytest.importorskip("mujoco")
+    hand = hand_from_mjcf(pinch_xml())
+    target = torch.tensor([[0.7, 0.0, 0.5, 0.6]], dtype=F64)
+    m = mujoco.MjModel.from_xml_string(pinch_xml())
+    d = mujoco.MjData(m)
+    ratio, q = {}, {}
+    for mu in (0.0, 0.1, 0.5):
+        s, C, root = _pinch_closed(hand, target, mu)
+        slots = torch.nonzero((s.contacts.body == BODY_SELF) & s.contacts.mask[0]).flatten()
+        assert len(slots) == 1
+        n = int(slots[0])
+        f, d0 = s.forces[0, n], s.contacts.d0[0, n]
+        fn = float(f @ d0)
+        assert fn > 1.0
+        ratio[mu] = float((f - fn * d0).norm()) / fn
+        q[mu] = s.q[0]
+        _deflection_is_mujoco_jacobian_transpose(hand, s, slots, C, root, m, d)
+    assert ratio[0.0] < 1e-9
+    assert 0.15 < ratio[0.5] < 0.5 - 0.1                     # sticking, well inside the cone
+    # sliding: on the pyramid's boundary (m = 4 pairs: between cos(pi/8) mu and mu)
+    assert 0.1 * np.cos(np.pi / 8) - 1e-9 <= ratio[0.1] <= 0.1 + 1e-9
+    assert float((q[0.5] - q[0.0]).abs().max()) > 0.03         # the stuck fingers stop elsewhere (rad)
 
 
 def test_slot_jacobians_are_computed_where_active_and_equal_the_full_ones():

@@ -131,6 +131,8 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
     r.add_argument("--tighten", type=float, default=0.95, metavar="F", help="compliance factor per step (0.95)")
     r.add_argument("--grip-floor", type=float, default=0.2, metavar="F", help="lowest compliance scale (0.2)")
     r.add_argument("--grip-delay", type=float, default=0.1, metavar="S", help="reaction delay, s (0.1)")
+    r.add_argument("--finger-friction", type=float, default=0.0, metavar="MU",
+                   help="friction coefficient between fingers (finger-finger contact slots; 0: frictionless)")
     r.add_argument("--pyramid-m", type=int, default=4, metavar="M", help="friction pyramid direction pairs (4)")
     r.add_argument("--solver", choices=["lemke", "pgs", "auto"], default=None,
                    help="LCP solver (default: lemke, per rollout; auto = batched PGS + Lemke for what it leaves; "
@@ -237,7 +239,8 @@ def run_resynthesize(args) -> int:
                         floor=args.grip_floor, delay=args.grip_delay)
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
                                settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
-                               object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel)
+                               object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel,
+                               finger_friction=args.finger_friction)
     if args.variants is not None:
         return _resynthesize_variant_file(args, settings)
     return _resynthesize_grid(args, settings)

@@ -73,8 +73,9 @@ class ResynthSettings:
     ``torchhand check`` measures; see :mod:`._contacts`) or "sdf" (the deepest surface sample of each link in a signed
     distance grid of ``sdf_voxel`` metres, 1 mm by default, with the grid's trilinear normals: about 20 % cheaper per
     step on the demo's box, but blended normals within a voxel of an edge); self_contacts: finger-finger contact slots
-    in the step (frictionless; :mod:`._contacts`), so that a finger closing further on a smaller object stops on its
-    neighbour instead of passing through it; lemke_warm: Lemke starts from the previous step's support
+    in the step (:mod:`._contacts`), so that a finger closing further on a smaller object stops on its neighbour
+    instead of passing through it; finger_friction: friction coefficient of those slots (0: frictionless);
+    lemke_warm: Lemke starts from the previous step's support
     (:class:`~torchhand.interaction.step.StepSettings`)
     """
 
@@ -92,6 +93,7 @@ class ResynthSettings:
     sdf_voxel: float = 0.001
     self_contacts: bool = True
     lemke_warm: bool = True
+    finger_friction: float = 0.0
 
     def __post_init__(self):
         if self.dt is not None and not self.dt > 0:
@@ -104,6 +106,8 @@ class ResynthSettings:
             raise InputValueError(f"--settle-steps: expected >= 0, got {self.settle_steps}")
         if self.object_contacts not in ("mesh", "sdf"):
             raise InputValueError(f"object_contacts: expected 'mesh' or 'sdf', got {self.object_contacts!r}")
+        if not (isinstance(self.finger_friction, (int, float)) and self.finger_friction >= 0):
+            raise InputValueError(f"--finger-friction: expected a coefficient >= 0, got {self.finger_friction!r}")
         if not self.sdf_voxel > 0:
             raise InputValueError(f"sdf_voxel: expected > 0 metres, got {self.sdf_voxel}")
 

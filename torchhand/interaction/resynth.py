@@ -176,7 +176,7 @@ def _step_settings(settings: ResynthSettings, scene, h: float, B: int) -> StepSe
     return StepSettings(h=h, pyramid_m=settings.pyramid_m, margin=settings.margin, solver=solver,
                         gravity=tuple(float(x) for x in scene.gravity), geometry="capsules",
                         pgs_max_iters=settings.pgs_max_iters, self_contacts=settings.self_contacts,
-                        lemke_warm=settings.lemke_warm)
+                        lemke_warm=settings.lemke_warm, self_mu=float(settings.finger_friction))
 
 
 def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: ResynthSettings = ResynthSettings(),
