@@ -351,26 +351,6 @@ def test_a_second_batch_process_on_the_same_directory_is_refused(local_batch, tm
     assert "another torchhand batch is running" in capsys.readouterr().err
 
 
-def test_ray_gives_the_local_pools_arrays(local_batch, tmp_path):
-    """The same jobs as Ray tasks on a local Ray instance with 2 CPUs: the same files, byte-identical arrays."""
-    pytest.importorskip("ray", reason="Ray is not installed (pip install 'torchhand[ray]')")
-    rc, manifest, local = local_batch
-    out = tmp_path / "ray"
-    assert cli(["batch", str(manifest), "--out", str(out), "--workers", "2", "--ray", "auto", "--no-progress"]) == 0
-    ids = set(load_manifest(manifest).ids)
-    _assert_exactly_once(out, ids)
-    assert {e["backend"] for e in _events(out) if e["event"] == "start"} == {"ray"}
-    for d in _job_dirs(local):
-        a, b = _arrays(d), _arrays(out / "jobs" / d.name)
-        assert len(a) == len(b) >= 1
-        for x, y in zip(a, b):
-            assert x.keys() == y.keys()
-            for k in x:
-                assert x[k].dtype == y[k].dtype and x[k].tobytes() == y[k].tobytes(), (d.name, k)
-        s, t = (json.loads((r / "jobs" / d.name / "stats.json").read_text()) for r in (local, out))
-        assert (s["nodes_tested"], s["dead_ends"], s["threads"]) == (t["nodes_tested"], t["dead_ends"], t["threads"])
-
-
 # --------------------------------------------------------------------------------------------- kill -9
 
 
