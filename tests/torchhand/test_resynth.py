@@ -272,6 +272,7 @@ def test_cli_writes_a_result_the_checker_reads(tmp_path):
     assert stats["rollouts"][0]["joint_clamp_frames"] == int((sol["joint_clamp"] > 1e-9).sum())
     assert stats["settings"]["object_contacts"] == "mesh" and stats["settings"]["self_contacts"]
     assert stats["settings"]["finger_friction"] == 0.0
+    assert 0 < stats["timings_s"]["median_step_ms"] < 1e4 and stats["per_step_ms"] > 0
     assert sol["slip_ratio"].shape == sol["contact_mask"].shape
     assert res.solution(0).q.shape == (res.scene.T, 4)
     report = check_result(out)

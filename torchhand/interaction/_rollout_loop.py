@@ -87,9 +87,10 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
     alive = torch.ones(B, dtype=torch.bool)
     failed_step = torch.full((B,), -1, dtype=torch.long)
     failed_status = torch.zeros(B, dtype=torch.int8)
-    frames, events = [], []
+    frames, events, walls = [], [], []
     t0 = time.perf_counter()
     for k in range(T):
+        t_k = time.perf_counter()
         Ck = C[:, k] * gs.scale
         nxt = min(k + 1, T - 1)
         new, rep = quasi_static_step(state, hand, theta_r[:, nxt], root_r[:, nxt], Ck, obj, env, settings)
@@ -103,10 +104,11 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
         gs, ev = grip_update(gs, k, f, rep.lam, state.contacts, mu, paths, grip)
         events += [e for e in ev if bool(alive[e[0]])]
         state = new
+        walls.append(time.perf_counter() - t_k)
         if progress is not None and (k + 1) % 50 == 0:
             el = time.perf_counter() - t0
             progress(f"step {k + 1}/{T}: {1e3 * el / (k + 1):.1f} ms/step, {int(alive.sum())}/{B} rollouts running")
     return RolloutRecord.from_frames(
         frames, failed_step=failed_step, failed_status=failed_status, grip_events=events, onset=gs.onset.cpu(),
         slot_link=c.link.cpu(), slot_body=c.body.cpu(), hand_obj=hand_obj,
-        step_time_s=(time.perf_counter() - t0) / max(T, 1))
+        step_time_s=(time.perf_counter() - t0) / max(T, 1), step_times_s=tuple(walls))

@@ -55,7 +55,8 @@ class RolloutRecord:
 
     failed_step: step whose LCP failed, (B,) long, -1: completed; failed_status: the solver status there, (B,) int8;
     grip_events: list of (rollout, frame, link); onset: first slip frame, (B,), -1: none; slot_link, slot_body: each
-    slot's link and body, (N,); hand_obj: hand-object slots, (N,) bool; step_time_s: seconds per step
+    slot's link and body, (N,); hand_obj: hand-object slots, (N,) bool; step_time_s: seconds per step (the mean);
+    step_times_s: each step's wall time, (T,) seconds (reported, never used to decide anything)
 
     ``rec["q"]`` reads a field by name, as the dict this record replaces did.
     """
@@ -83,6 +84,7 @@ class RolloutRecord:
     slot_body: torch.Tensor
     hand_obj: torch.Tensor
     step_time_s: float
+    step_times_s: tuple = ()
 
     def __getitem__(self, name: str):
         if name not in self.__dataclass_fields__:

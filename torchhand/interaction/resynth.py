@@ -217,7 +217,9 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
                                     hold) for b, v in enumerate(variants))
     scenes = tuple(_output_scene(scene, r, 1.0 / h) for r in rollouts)
     first = next((i for i, r in enumerate(rollouts) if r.ok), 0)
-    timings = {"simulate_s": t_sim, "per_step_ms": 1e3 * rec.step_time_s, "total_s": time.perf_counter() - t_start}
+    timings = {"simulate_s": t_sim, "per_step_ms": 1e3 * rec.step_time_s,
+               "median_step_ms": 1e3 * float(np.median(rec.step_times_s)) if rec.step_times_s else None,
+               "total_s": time.perf_counter() - t_start}
     return ResynthResult(rollouts, scenes[first], hand, 1.0 / h, timings, settings, inter.source, scenes)
 
 
