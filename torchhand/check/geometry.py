@@ -169,7 +169,9 @@ class ObjectMesh:
 
         Point-triangle distances are trimesh's (``trimesh.triangles.closest_point``). Candidates: the distance
         ``u`` to the triangles of the 8 nearest centroids bounds the answer from above, and only triangles whose
-        bounding box meets the box of half-size ``u`` about the point can hold a closer point.
+        bounding box meets the box of half-size ``u`` about the point can hold a closer point. A small mesh (at most
+        ``BRUTE_FACES`` triangles, a box's 12) is searched whole: one call over every (point, triangle) pair costs
+        less than the bound and its filter. Either way the nearest triangle wins, the lowest index among equals.
         """
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         N = len(points)
@@ -177,6 +179,8 @@ class ObjectMesh:
         F = len(tris)
         if N == 0:
             return np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
+        if F <= BRUTE_FACES:
+            return _nearest(tris, points, np.repeat(np.arange(N), F), np.tile(np.arange(F), N))
         k = min(8, F)
         _, near = self._centre_tree.query(points, k=k)
         near = np.asarray(near, dtype=np.int64).reshape(N, k)
@@ -191,12 +195,7 @@ class ObjectMesh:
             i, f = np.nonzero(np.all((lo <= p + r) & (hi >= p - r), axis=-1))
             owners.append(i + s)
             faces.append(f)
-        owner, face = np.concatenate(owners), np.concatenate(faces)
-        c = triangle_closest_point(tris[face], points[owner])
-        d = np.linalg.norm(c - points[owner], axis=-1)
-        order = np.lexsort((d, owner))                                      # by point, nearest first
-        first = order[np.concatenate([[True], owner[order][1:] != owner[order][:-1]])]
-        return c[first], d[first], face[first].astype(np.int64)
+        return _nearest(tris, points, np.concatenate(owners), np.concatenate(faces))
 
     def normal_cone(self, surface_points: np.ndarray, triangle: np.ndarray, tol: float) -> list[np.ndarray]:
         """Inward normals of the faces meeting at each surface point: the generators of its normal cone.
@@ -234,6 +233,20 @@ class ObjectMesh:
             owners.append(i + s)
             faces.append(f)
         return np.concatenate(owners).astype(np.int64), np.concatenate(faces).astype(np.int64)
+
+
+BRUTE_FACES = 64
+"""Meshes with at most this many triangles are searched whole by :meth:`ObjectMesh.closest`."""
+
+
+def _nearest(tris: np.ndarray, points: np.ndarray, owner: np.ndarray, face: np.ndarray):
+    """Per point, the nearest of its candidate (point ``owner``, triangle ``face``) pairs (each point has one, in
+    ascending triangle order): closest (N, 3), distance (N,), triangle (N,) long."""
+    c = triangle_closest_point(tris[face], points[owner])
+    d = np.linalg.norm(c - points[owner], axis=-1)
+    order = np.lexsort((d, owner))                                          # by point, nearest first
+    first = order[np.concatenate([[True], owner[order][1:] != owner[order][:-1]])]
+    return c[first], d[first], face[first].astype(np.int64)
 
 
 def winding_number(triangles: np.ndarray, points: np.ndarray, chunk: int = 64) -> np.ndarray:
