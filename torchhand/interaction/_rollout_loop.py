@@ -8,6 +8,7 @@ counting), and the grip update (:mod:`torchhand.interaction.grip`). Units: metre
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import torch
@@ -68,10 +69,23 @@ def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tenso
     """
     from threadpoolctl import threadpool_limits
 
-    # the per-rollout LCPs are small dense NumPy solves: one BLAS thread, because several threads on such problems
-    # only contend (6x slower measured on a busy 2-core machine) and the results must not depend on the cores
-    with threadpool_limits(limits=1, user_api="blas"):
+    # the per-rollout LCPs are small dense NumPy solves and the step's tensors are small: one BLAS thread and one
+    # torch thread, because several threads on such problems only contend (on a busy 2-core machine: the LCP 6x
+    # slower with two BLAS threads, the whole step 7.8x with two torch threads; on a quiet one two torch threads
+    # gained 7 % at 16 rollouts and nothing at one), and the results must not depend on the cores
+    with threadpool_limits(limits=1, user_api="blas"), _one_torch_thread():
         return _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress)
+
+
+@contextlib.contextmanager
+def _one_torch_thread():
+    """torch's intra-op threads held at one inside the block, then restored."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
 
 
 def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress):
