@@ -169,9 +169,10 @@ class ObjectMesh:
 
         Point-triangle distances are trimesh's (``trimesh.triangles.closest_point``). Candidates: the distance
         ``u`` to the triangles of the 8 nearest centroids bounds the answer from above, and only triangles whose
-        bounding box meets the box of half-size ``u`` about the point can hold a closer point. A small mesh (at most
-        ``BRUTE_FACES`` triangles, a box's 12) is searched whole: one call over every (point, triangle) pair costs
-        less than the bound and its filter. Either way the nearest triangle wins, the lowest index among equals.
+        bounding box meets the box of half-size ``u`` about the point can hold a closer point. A small query (at most
+        ``BRUTE_PAIRS`` (point, triangle) pairs: a box's 12 triangles and a few hundred points) is searched whole:
+        one call over every pair costs less than the bound and its filter. Either way the nearest triangle wins,
+        the lowest index among equals.
         """
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         N = len(points)
@@ -179,7 +180,7 @@ class ObjectMesh:
         F = len(tris)
         if N == 0:
             return np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64)
-        if F <= BRUTE_FACES:
+        if N * F <= BRUTE_PAIRS:
             return _nearest(tris, points, np.repeat(np.arange(N), F), np.tile(np.arange(F), N))
         k = min(8, F)
         _, near = self._centre_tree.query(points, k=k)
@@ -235,8 +236,9 @@ class ObjectMesh:
         return np.concatenate(owners).astype(np.int64), np.concatenate(faces).astype(np.int64)
 
 
-BRUTE_FACES = 64
-"""Meshes with at most this many triangles are searched whole by :meth:`ObjectMesh.closest`."""
+BRUTE_PAIRS = 4096
+"""Queries of at most this many (point, triangle) pairs are searched whole by :meth:`ObjectMesh.closest` (measured on
+the 12-triangle box: 0.50 against 0.60 ms at 100 points, even at 400, slower beyond)."""
 
 
 def _nearest(tris: np.ndarray, points: np.ndarray, owner: np.ndarray, face: np.ndarray):
