@@ -80,6 +80,7 @@ CAPTURE_OPTIONS = {
     "dtype": _Option("--dtype", "str", "float64", choices=("float64", "float32")),
     "object_contacts": _Option("--object-contacts", "str", "mesh", choices=("mesh", "sdf")),
     "sdf_voxel": _Option("--sdf-voxel", "float", 0.001, 0, strict=True),
+    "finger_friction": _Option("--finger-friction", "float", 0.0, 0),
 }
 """Options of a ``capture`` job (``torchhand capture resynthesize``'s flags and defaults; a test holds them
 together). ``mass``, ``compliance_scale`` and ``friction`` are lists (one rollout per combination) or one number."""

@@ -34,7 +34,7 @@ from .._numerics import ENV_MODE, portable_env
 __all__ = ["RUN_FLAGS", "UNSUITABLE", "Tee", "command", "describe_exit", "environment", "popen_kwargs",
            "record_unsuitable", "run_device", "write_check"]
 
-RUN_FLAGS = {"synthesize": ("--device", "--no-progress"), "manipulate": ("--no-progress",), "capture": ()}
+RUN_FLAGS = {"synthesize": ("--device", "--no-progress"), "manipulate": ("--no-progress",), "capture": ("--device",)}
 """Method -> the run flags its command has besides ``--out`` and ``--threads`` (a test holds them to the CLI)."""
 
 UNSUITABLE = "unsuitable.json"
@@ -43,7 +43,7 @@ UNSUITABLE = "unsuitable.json"
 
 def run_device(method: str, device: str) -> str:
     """The device a job of ``method`` runs on when the batch asks for ``device``: commands without ``--device``
-    (manipulate, capture) run on the CPU."""
+    (manipulate) run on the CPU."""
     return device if "--device" in RUN_FLAGS.get(method, ("--device",)) else "cpu"
 
 

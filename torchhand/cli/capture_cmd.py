@@ -131,6 +131,9 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
     r.add_argument("--tighten", type=float, default=0.95, metavar="F", help="compliance factor per step (0.95)")
     r.add_argument("--grip-floor", type=float, default=0.2, metavar="F", help="lowest compliance scale (0.2)")
     r.add_argument("--grip-delay", type=float, default=0.1, metavar="S", help="reaction delay, s (0.1)")
+    r.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
+                   help="where the step's tensors live (default cpu; the exact-mesh queries and the per-rollout LCPs "
+                        "run on the CPU either way)")
     r.add_argument("--finger-friction", type=float, default=0.0, metavar="MU",
                    help="friction coefficient between fingers (finger-finger contact slots; 0: frictionless)")
     r.add_argument("--pyramid-m", type=int, default=4, metavar="M", help="friction pyramid direction pairs (4)")
@@ -240,7 +243,7 @@ def run_resynthesize(args) -> int:
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
                                settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
                                object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel,
-                               finger_friction=args.finger_friction)
+                               finger_friction=args.finger_friction, device=args.device)
     if args.variants is not None:
         return _resynthesize_variant_file(args, settings)
     return _resynthesize_grid(args, settings)

@@ -76,7 +76,8 @@ class ResynthSettings:
     in the step (:mod:`._contacts`), so that a finger closing further on a smaller object stops on its neighbour
     instead of passing through it; finger_friction: friction coefficient of those slots (0: frictionless);
     lemke_warm: Lemke starts from the previous step's support
-    (:class:`~torchhand.interaction.step.StepSettings`)
+    (:class:`~torchhand.interaction.step.StepSettings`); device: "cpu" or "cuda" (or "cuda:N"), where the step's
+    tensors live (the exact-mesh queries and the per-rollout LCPs run on the CPU either way)
     """
 
     dt: float | None = None
@@ -94,6 +95,7 @@ class ResynthSettings:
     self_contacts: bool = True
     lemke_warm: bool = True
     finger_friction: float = 0.0
+    device: str = "cpu"
 
     def __post_init__(self):
         if self.dt is not None and not self.dt > 0:
@@ -108,6 +110,8 @@ class ResynthSettings:
             raise InputValueError(f"object_contacts: expected 'mesh' or 'sdf', got {self.object_contacts!r}")
         if not (isinstance(self.finger_friction, (int, float)) and self.finger_friction >= 0):
             raise InputValueError(f"--finger-friction: expected a coefficient >= 0, got {self.finger_friction!r}")
+        if not (isinstance(self.device, str) and (self.device == "cpu" or self.device.split(":")[0] == "cuda")):
+            raise InputValueError(f"--device: expected cpu or cuda, got {self.device!r}")
         if not self.sdf_voxel > 0:
             raise InputValueError(f"sdf_voxel: expected > 0 metres, got {self.sdf_voxel}")
 

@@ -179,6 +179,14 @@ def _step_settings(settings: ResynthSettings, scene, h: float, B: int) -> StepSe
                         lemke_warm=settings.lemke_warm, self_mu=float(settings.finger_friction))
 
 
+def _device(name: str) -> torch.device:
+    """The rollouts' device; an InputValueError when it is CUDA and none is available."""
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputValueError(f"--device {name}: no CUDA device is available; use --device cpu")
+    return device
+
+
 def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: ResynthSettings = ResynthSettings(),
                  progress=None) -> ResynthResult:
     """Resynthesise ``inter`` with the scene's object, table and hand, one rollout per variant (module docstring).
@@ -196,21 +204,25 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
     h = _step_time(inter, scene, variants, settings)
     B = len(variants)
     dtype = settings.dtype
-    hand = track_hand(scene.hands[0]).to("cpu", dtype)
+    device = _device(settings.device)
+    hand = track_hand(scene.hands[0]).to(device, dtype)
     _check_names(inter, hand)
     ref = _references(inter, scene, h, dtype)
     T = ref.theta_r.shape[0]
     obj, env = _environment(scene, variants, settings, dtype)
+    if obj.sdf is not None:
+        obj = dataclasses.replace(obj, sdf=obj.sdf.to(device, dtype))
     step = _step_settings(settings, scene, h, B)
     scale = torch.tensor([v.compliance_scale for v in variants], dtype=dtype)
-    Ct = torch.from_numpy(ref.C).to(dtype)[None] * scale[:, None, None]
-    th = torch.from_numpy(ref.theta_r).to(dtype).expand(B, T, -1).contiguous()
-    E0 = scene.object_pose[0].to(dtype).expand(B, 4, 4).contiguous()
+    Ct = (torch.from_numpy(ref.C).to(dtype)[None] * scale[:, None, None]).to(device)
+    th = torch.from_numpy(ref.theta_r).to(device, dtype).expand(B, T, -1).contiguous()
+    E0 = scene.object_pose[0].to(device, dtype).expand(B, 4, 4).contiguous()
+    root_r = ref.root_r.to(device).expand(B, T, 4, 4).contiguous()
     if progress is not None:
-        progress(f"resynthesis: {B} rollout(s), {T} steps of {1e3 * h:.2f} ms, solver {step.solver}")
+        progress(f"resynthesis: {B} rollout(s), {T} steps of {1e3 * h:.2f} ms, solver {step.solver}, on {device}")
     t_sim = time.perf_counter()
-    rec = simulate(hand, obj, env, th, ref.root_r.expand(B, T, 4, 4).contiguous(), Ct, E0, settings=step,
-                   grip=settings.grip, settle_steps=settings.settle_steps, progress=progress)
+    rec = simulate(hand, obj, env, th, root_r, Ct, E0, settings=step, grip=settings.grip,
+                   settle_steps=settings.settle_steps, progress=progress)
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
     rollouts = tuple(rollout_result(rec, b, v, ref.theta_r, np.asarray(v.object_of(scene).com, dtype=np.float64),
