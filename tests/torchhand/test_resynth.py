@@ -275,6 +275,10 @@ def test_cli_writes_a_result_the_checker_reads(tmp_path):
     assert 0 < stats["timings_s"]["median_step_ms"] < 1e4 and stats["per_step_ms"] > 0
     assert sol["slip_ratio"].shape == sol["contact_mask"].shape
     assert res.solution(0).q.shape == (res.scene.T, 4)
+    # object-table contacts lie on the table (a corner closing a gap during its step is written where it lands)
+    em = sol["env_contact_mask"]
+    assert em.any()
+    np.testing.assert_allclose(sol["env_contact_point"][em][:, 2], res.scene.environment.table_height, atol=1e-12)
     report = check_result(out)
     first = report.solutions[0]
     # the light box (the scene's mass): penetration, contact gaps, cones and balance pass

@@ -118,7 +118,9 @@ def hold_frame(root_r: np.ndarray, given: int | None) -> int:
 def rollout_result(rec: RolloutRecord, b: int, variant: Variant, theta_r: np.ndarray, com: np.ndarray,
                    hold: int) -> Rollout:
     """Rollout ``b`` of the record as a :class:`Rollout`, NumPy float64: hand-object slots that push (f_n > 1 nN)
-    become contacts with points on the object surface and forces on the object; object-table slots the env arrays.
+    become contacts with points on the object surface and forces on the object; object-table slots the env arrays,
+    with points on the table (the object's support point moved along the table normal by its height above it: a
+    corner that closes a gap during step k carries force at frame k, as a hand contact does).
 
     variant: the rollout's :class:`Variant`; theta_r: the reference, (T, D), radians; com: the object's centre of
     mass, (3,), object frame, metres; hold: the frame :func:`object_slip` is measured from
@@ -149,7 +151,8 @@ def rollout_result(rec: RolloutRecord, b: int, variant: Variant, theta_r: np.nda
         q=f64(rec.q), root_pose=root, object_pose=obj, theta_r=theta_r, compliance=f64(rec.C),
         slot_link=rec.slot_link.numpy()[hs], contact_mask=hmask, contact_point=point,
         contact_normal=-d0[:, hs] * m3, contact_force=fh, contact_sliding=hmask & (lam > 1e-9), slip_ratio=rho,
-        env_mask=emask, env_point=pts[:, es] * emask[..., None], env_force=force[:, es] * emask[..., None],
+        env_mask=emask, env_point=(pts[:, es] - sep[:, es, None] * d0[:, es]) * emask[..., None],
+        env_force=force[:, es] * emask[..., None],
         lcp_status=rec.status[b].numpy().astype(np.int8), lcp_residual=f64(rec.residual),
         theta_err=f64(rec.theta_err), joint_clamp=clamp, grip_events=ev, grip_onset=int(rec.onset[b]),
         object_slip=object_slip(root, obj, com, hold), hold_frame=hold)
