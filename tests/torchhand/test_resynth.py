@@ -526,3 +526,16 @@ def test_resynthesis_on_cuda_follows_the_cpu(tmp_path):
         assert a.ok and b.ok
         np.testing.assert_allclose(np.asarray(b.object_pose), np.asarray(a.object_pose), atol=1e-9)
         np.testing.assert_allclose(np.asarray(b.q), np.asarray(a.q), atol=1e-8)
+
+
+def test_a_step_given_in_decimals_keeps_the_last_frame():
+    """42 frames at 30 fps stepped at 1/240 s are 329 steps, also when the step is written 0.004166666667 (a hair
+    longer, so that 1.3667 s / h falls 3e-8 short of 328 steps); a step that truly does not reach the end adds none."""
+    from torchhand.interaction.resynth import _resample
+
+    T, D = 42, 3
+    inter = Interaction(fps=30.0, joint_names=tuple(f"j{i}" for i in range(D)), C=np.ones((T, 6 + D)),
+                        theta_r=np.zeros((T, D)), root_theta_r=np.zeros((T, 6)))
+    assert _resample(inter, 1 / 240)[0].shape[0] == 329
+    assert _resample(inter, 0.004166666667)[0].shape[0] == 329
+    assert _resample(inter, 1 / 239)[0].shape[0] == 327

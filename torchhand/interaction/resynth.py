@@ -67,8 +67,10 @@ __all__ = ["Interaction", "load_interaction", "save_interaction", "Variant", "ex
 
 
 def _resample(inter: Interaction, h: float):
-    """Reference at t_k = k h over the interaction's duration: theta_r, root coordinates (linear), C (held)."""
-    T = int(np.floor(inter.duration / h + 1e-9)) + 1
+    """Reference at t_k = k h over the interaction's duration: theta_r, root coordinates (linear), C (held). A last
+    step within a millionth of a step of the end counts (h given in decimals, 0.004166666667 for 1/240 s, keeps the
+    last frame)."""
+    T = int(np.floor(inter.duration / h + 1e-6)) + 1
     t = np.arange(T) * h * inter.fps
     i0 = np.clip(np.floor(t + 1e-9).astype(int), 0, inter.T - 1)
     i1 = np.minimum(i0 + 1, inter.T - 1)
