@@ -81,6 +81,9 @@ CAPTURE_OPTIONS = {
     "object_contacts": _Option("--object-contacts", "str", "mesh", choices=("mesh", "sdf")),
     "sdf_voxel": _Option("--sdf-voxel", "float", 0.001, 0, strict=True),
     "finger_friction": _Option("--finger-friction", "float", 0.0, 0),
+    "reach": _Option("--reach", "bool", False),
+    "reach_rate": _Option("--reach-rate", "float", 0.5, 0),
+    "reach_limit": _Option("--reach-limit", "float", 0.25, 0),
 }
 """Options of a ``capture`` job (``torchhand capture resynthesize``'s flags and defaults; a test holds them
 together). ``mass``, ``compliance_scale`` and ``friction`` are lists (one rollout per combination) or one number."""

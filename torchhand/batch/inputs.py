@@ -93,6 +93,7 @@ def check_capture(scene: str, interaction: str, options: dict, where: str, seen:
 
     from ..errors import TorchhandError
     from ..interaction.grip import GripSettings
+    from ..interaction.reach import ReachSettings
     from ..interaction.resynth import ResynthSettings, expand_variants, load_interaction
 
     sc = load_scene_once(scene, where, seen)
@@ -105,7 +106,8 @@ def check_capture(scene: str, interaction: str, options: dict, where: str, seen:
                      floor=o["grip_floor"], delay=o["grip_delay"])
         ResynthSettings(dt=o["dt"], pyramid_m=o["pyramid_m"], solver=o["solver"], settle_steps=o["settle_steps"],
                         dtype=getattr(torch, o["dtype"]), object_contacts=o["object_contacts"],
-                        sdf_voxel=o["sdf_voxel"], finger_friction=o["finger_friction"])
+                        sdf_voxel=o["sdf_voxel"], finger_friction=o["finger_friction"],
+                        reach=ReachSettings(enabled=o["reach"], rate=o["reach_rate"], limit=o["reach_limit"]))
         expand_variants(o["mass"] or (None,), o["compliance_scale"], o["friction"] or (None,))
     except TorchhandError as err:
         raise type(err)(f"{where}: {err}") from None

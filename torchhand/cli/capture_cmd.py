@@ -136,6 +136,12 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
                         "run on the CPU either way)")
     r.add_argument("--finger-friction", type=float, default=0.0, metavar="MU",
                    help="friction coefficient between fingers (finger-finger contact slots; 0: frictionless)")
+    r.add_argument("--reach", action="store_true",
+                   help="a finger the reference pushes with that does not touch the object closes on along the "
+                        "reference's push until it does (docs/interaction_capture.md, 'Reach')")
+    r.add_argument("--reach-rate", type=float, default=0.5, metavar="RAD_S", help="closing speed of --reach (0.5)")
+    r.add_argument("--reach-limit", type=float, default=0.25, metavar="RAD",
+                   help="largest extra closing per finger with --reach (0.25)")
     r.add_argument("--pyramid-m", type=int, default=4, metavar="M", help="friction pyramid direction pairs (4)")
     r.add_argument("--solver", choices=["lemke", "pgs", "auto"], default=None,
                    help="LCP solver (default: lemke, per rollout; auto = batched PGS + Lemke for what it leaves; "
@@ -235,6 +241,7 @@ def run_resynthesize(args) -> int:
     import torch
 
     from torchhand.interaction.grip import GripSettings
+    from torchhand.interaction.reach import ReachSettings
     from torchhand.interaction.resynth import ResynthSettings
 
     apply_threads(args.threads)
@@ -243,7 +250,8 @@ def run_resynthesize(args) -> int:
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
                                settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
                                object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel,
-                               finger_friction=args.finger_friction, device=args.device)
+                               finger_friction=args.finger_friction, device=args.device,
+                               reach=ReachSettings(enabled=args.reach, rate=args.reach_rate, limit=args.reach_limit))
     if args.variants is not None:
         return _resynthesize_variant_file(args, settings)
     return _resynthesize_grid(args, settings)

@@ -27,7 +27,8 @@ class Interaction:
     (root linear m/N); theta_r: reference joints, (T, D), radians; root_theta_r: reference root coordinates,
     (T, 6): rotation vector (rad) and translation (m) relative to ``root_origin``; root_origin: (4, 4) world pose
     the root coordinates are relative to, or None (the scene's first wrist pose); source: "measured" | "synthetic" |
-    "inferred" | "constructed" | ""
+    "inferred" | "constructed" | ""; theta: the captured coordinates the reference was made from, (T, 6 + D), or
+    None (the file's optional ``theta``; theta - theta_r = C tau is how far the object holds each joint open)
     """
 
     fps: float
@@ -37,6 +38,7 @@ class Interaction:
     root_theta_r: np.ndarray
     root_origin: np.ndarray | None = None
     source: str = ""
+    theta: np.ndarray | None = None
 
     @property
     def T(self) -> int:
@@ -59,7 +61,7 @@ def _key(data, name: str, path, shape=None) -> np.ndarray:
 
 def load_interaction(path) -> Interaction:
     """Read ``interaction.npz`` (docs/interaction_capture.md): ``C``, ``theta_r``, ``root_theta_r``, ``fps``,
-    ``joint_names``; optional ``root_origin`` (4, 4) and ``source``.
+    ``joint_names``; optional ``root_origin`` (4, 4), ``source`` and ``theta`` (T, 6 + D).
 
     raises: MissingFileError, FileFormatError (missing key, wrong shape or dtype, T mismatch), InputValueError
         (NaN or inf with the first bad frame, fps <= 0, compliance < 0)
@@ -85,7 +87,10 @@ def load_interaction(path) -> Interaction:
     if T < 2:
         raise InputValueError(f"{path}: needs at least 2 frames, got {T}")
     source = str(data["source"]) if "source" in data else ""
-    return Interaction(fps, names, C, theta_r, root, origin, source)
+    theta = _key(data, "theta", path, (T, 6 + D)).astype(np.float64) if "theta" in data else None
+    if theta is not None and not np.isfinite(theta).all():
+        raise InputValueError(f"{path}: 'theta' is not finite at frame {int(np.argmax(~np.isfinite(theta).all(1)))}")
+    return Interaction(fps, names, C, theta_r, root, origin, source, theta)
 
 
 def save_interaction(inter: Interaction, path) -> Path:
@@ -95,6 +100,8 @@ def save_interaction(inter: Interaction, path) -> Path:
             "names": np.array(("root_rx", "root_ry", "root_rz", "root_x", "root_y", "root_z") + inter.joint_names)}
     if inter.root_origin is not None:
         data["root_origin"] = inter.root_origin
+    if inter.theta is not None:
+        data["theta"] = inter.theta
     buf = io.BytesIO()
     np.savez_compressed(buf, **data)
     atomic_bytes(Path(path), buf.getvalue())

@@ -76,7 +76,7 @@ def _stats(result: ResynthResult, written: list) -> dict:
             "settings": {"dt": 1.0 / result.fps, "pyramid_m": s.pyramid_m, "solver": s.solver,
                          "margin": s.margin, "settle_steps": s.settle_steps, "grip": dataclasses.asdict(s.grip),
                          "object_contacts": s.object_contacts, "self_contacts": s.self_contacts,
-                         "finger_friction": s.finger_friction,
+                         "finger_friction": s.finger_friction, "reach": dataclasses.asdict(s.reach),
                          "sdf_voxel": s.sdf_voxel if s.object_contacts == "sdf" else None},
             "threads": torch.get_num_threads(), "numerics": numerics_record()}
 

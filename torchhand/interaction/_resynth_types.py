@@ -17,6 +17,7 @@ import torch
 
 from ..errors import InputValueError
 from .grip import GripSettings
+from .reach import ReachSettings
 
 __all__ = ["Variant", "expand_variants", "ResynthSettings", "RolloutStatus", "Rollout", "ResynthResult"]
 
@@ -76,7 +77,8 @@ class ResynthSettings:
     in the step (:mod:`._contacts`), so that a finger closing further on a smaller object stops on its neighbour
     instead of passing through it; finger_friction: friction coefficient of those slots (0: frictionless);
     lemke_warm: Lemke starts from the previous step's support
-    (:class:`~torchhand.interaction.step.StepSettings`); device: "cpu" or "cuda" (or "cuda:N"), where the step's
+    (:class:`~torchhand.interaction.step.StepSettings`); reach: :class:`~torchhand.interaction.reach.ReachSettings`
+    (a finger the reference pushes with that does not touch closes on; off by default); device: "cpu" or "cuda" (or "cuda:N"), where the step's
     tensors live (the exact-mesh queries and the per-rollout LCPs run on the CPU either way)
     """
 
@@ -96,6 +98,7 @@ class ResynthSettings:
     lemke_warm: bool = True
     finger_friction: float = 0.0
     device: str = "cpu"
+    reach: ReachSettings = ReachSettings()
 
     def __post_init__(self):
         if self.dt is not None and not self.dt > 0:

@@ -18,6 +18,7 @@ from ..kernels.status import SolverStatus
 from ._contacts import BODY_OBJECT, Contacts, TablePlane
 from ._rollout_record import FrameRecord, RolloutRecord
 from .grip import GripSettings, grip_update, init_grip, path_mask
+from .reach import reach_update, touching_fingers
 from .step import StepObject, StepReport, StepSettings, StepState, initial_state, quasi_static_step
 
 __all__ = ["simulate"]
@@ -48,7 +49,7 @@ def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor,
     """Frame k on the CPU: the state at t_k and what step k solved."""
     sc = state.contacts
     cpu = lambda x: x.detach().cpu()
-    return FrameRecord(q=cpu(state.q), root=cpu(state.root), object_pose=cpu(state.object_pose), C=cpu(Ck),
+    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root), object_pose=cpu(state.object_pose), C=cpu(Ck),
                        points=cpu(sc.points), d0=cpu(sc.d0), sep=cpu(sc.separation), body_mask=cpu(sc.mask),
                        forces=cpu(f), lam=cpu(rep.lam), mu=cpu(mu), status=cpu(rep.status),
                        residual=cpu(rep.residual), theta_err=cpu(state.theta_err.abs().amax(-1)),
@@ -57,12 +58,15 @@ def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor,
 
 def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tensor, root_r: torch.Tensor,
              C: torch.Tensor, object_pose0: torch.Tensor, *, settings: StepSettings,
-             grip: GripSettings = GripSettings(), settle_steps: int = 0, progress=None) -> RolloutRecord:
+             grip: GripSettings = GripSettings(), settle_steps: int = 0, progress=None,
+             reach: tuple | None = None) -> RolloutRecord:
     """Run B rollouts over T frames (module docstring of :mod:`torchhand.interaction.resynth`, stages 4-6).
 
     hand: HandModel (the rollouts' dtype); obj: :class:`StepObject` (per-rollout ``masses``/``mus`` allowed);
     env: the table or None; theta_r: (B, T, D) rad; root_r: (B, T, 4, 4); C: (B, T, 6 + D) (variant scales applied);
-    object_pose0: (B, 4, 4); settings: :class:`StepSettings`; grip: :class:`GripSettings`; progress: callable(str)
+    object_pose0: (B, 4, 4); settings: :class:`StepSettings`; grip: :class:`GripSettings`; progress: callable(str);
+    reach: (:class:`~torchhand.interaction.reach.ReachPlan` over the T steps, its
+    :class:`~torchhand.interaction.reach.ReachSettings`) or None
     returns: :class:`~torchhand.interaction._rollout_record.RolloutRecord`: per-frame tensors (CPU), per-rollout
         ``failed_step`` (B,) (-1: completed), ``failed_status`` (B,) int8, ``grip_events`` list of
         (rollout, frame, link), ``onset`` (B,); fields also read by key (``rec["q"]``)
@@ -74,7 +78,8 @@ def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tenso
     # slower with two BLAS threads, the whole step 7.8x with two torch threads; on a quiet one two torch threads
     # gained 7 % at 16 rollouts and nothing at one), and the results must not depend on the cores
     with threadpool_limits(limits=1, user_api="blas"), _one_torch_thread():
-        return _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress)
+        return _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress,
+                         reach)
 
 
 @contextlib.contextmanager
@@ -88,7 +93,21 @@ def _one_torch_thread():
         torch.set_num_threads(n)
 
 
-def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress):
+def _next_reference(theta_r: torch.Tensor, root_r: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The reference step k moves to: frame k + 1's, and after the last frame the last frame's motion continued
+    for one step (joints linearly, the root by its last relative motion), so that the last frame's forces carry the
+    motion on instead of stopping the hand within one step while the object moves (the checker's balance at the
+    last frame takes the acceleration of the frame before it)."""
+    T = theta_r.shape[1]
+    if k + 1 < T:
+        return theta_r[:, k + 1], root_r[:, k + 1]
+    if T < 2:
+        return theta_r[:, -1], root_r[:, -1]
+    last, before = root_r[:, -1], root_r[:, -2]
+    return 2 * theta_r[:, -1] - theta_r[:, -2], last @ torch.linalg.inv(before) @ last
+
+
+def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress, reach):
     B, T, D = theta_r.shape
     like = theta_r
     state = _start(hand, obj, env, theta_r, root_r, object_pose0, settings)
@@ -102,12 +121,13 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
     failed_step = torch.full((B,), -1, dtype=torch.long)
     failed_status = torch.zeros(B, dtype=torch.int8)
     frames, events, walls = [], [], []
+    offset = like.new_zeros(B, D)
     t0 = time.perf_counter()
     for k in range(T):
         t_k = time.perf_counter()
         Ck = C[:, k] * gs.scale
-        nxt = min(k + 1, T - 1)
-        new, rep = quasi_static_step(state, hand, theta_r[:, nxt], root_r[:, nxt], Ck, obj, env, settings)
+        th_next, root_next = _next_reference(theta_r, root_r, k)
+        new, rep = quasi_static_step(state, hand, th_next + offset, root_next, Ck, obj, env, settings)
         f, mu = _slot_forces(rep, state.contacts, B)
         frames.append(_frame(state, rep, Ck, f, mu))
         bad = alive & (rep.status.cpu() != _CONVERGED)
@@ -117,6 +137,10 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
             alive &= ~bad
         gs, ev = grip_update(gs, k, f, rep.lam, state.contacts, mu, paths, grip)
         events += [e for e in ev if bool(alive[e[0]])]
+        if reach is not None:
+            plan, rs = reach
+            offset = reach_update(offset, k, plan, touching_fingers(f, state.contacts, hand, rs.min_force),
+                                  settings.h, rs)
         state = new
         walls.append(time.perf_counter() - t_k)
         if progress is not None and (k + 1) % 50 == 0:

@@ -24,7 +24,8 @@ __all__ = ["FrameRecord", "RolloutRecord", "object_slip", "hold_frame", "rollout
 class FrameRecord:
     """Frame k of B rollouts, on the CPU (N contact slots, D joints).
 
-    q: theta^k, (B, D), radians; root: root pose, (B, 4, 4); object_pose: E^k, (B, 4, 4); C: the compliance applied
+    q: theta^k, (B, D), radians; theta_r: the reference of frame k (the reach's offset included), (B, D), radians;
+    root: root pose, (B, 4, 4); object_pose: E^k, (B, 4, 4); C: the compliance applied
     at step k (variant scale and grip included), (B, 6 + D), rad/(N m) (root linear m/N); points: slot points, (B, N,
     3), world, metres; d0: slot normals, (B, N, 3); sep: separations, (B, N), metres; body_mask: active slots, (B, N);
     forces: f^{k+1}, (B, N, 3), newtons; lam: slip lambda_i, (B, N), metres; mu: friction per slot, (B, N); status:
@@ -32,6 +33,7 @@ class FrameRecord:
     """
 
     q: torch.Tensor
+    theta_r: torch.Tensor
     root: torch.Tensor
     object_pose: torch.Tensor
     C: torch.Tensor
@@ -62,6 +64,7 @@ class RolloutRecord:
     """
 
     q: torch.Tensor
+    theta_r: torch.Tensor
     root: torch.Tensor
     object_pose: torch.Tensor
     C: torch.Tensor
@@ -115,14 +118,13 @@ def hold_frame(root_r: np.ndarray, given: int | None) -> int:
     return int(np.argmax(moved)) if moved.any() else 0
 
 
-def rollout_result(rec: RolloutRecord, b: int, variant: Variant, theta_r: np.ndarray, com: np.ndarray,
-                   hold: int) -> Rollout:
+def rollout_result(rec: RolloutRecord, b: int, variant: Variant, com: np.ndarray, hold: int) -> Rollout:
     """Rollout ``b`` of the record as a :class:`Rollout`, NumPy float64: hand-object slots that push (f_n > 1 nN)
     become contacts with points on the object surface and forces on the object; object-table slots the env arrays,
     with points on the table (the object's support point moved along the table normal by its height above it: a
     corner that closes a gap during step k carries force at frame k, as a hand contact does).
 
-    variant: the rollout's :class:`Variant`; theta_r: the reference, (T, D), radians; com: the object's centre of
+    variant: the rollout's :class:`Variant`; com: the object's centre of
     mass, (3,), object frame, metres; hold: the frame :func:`object_slip` is measured from
     """
     f64 = lambda x: x[b].double().numpy()
@@ -148,7 +150,7 @@ def rollout_result(rec: RolloutRecord, b: int, variant: Variant, theta_r: np.nda
     return Rollout(
         variant=variant, status=RolloutStatus.COMPLETED if failed < 0 else RolloutStatus.LCP_FAILED,
         failed_step=failed, failed_status="" if failed < 0 else SolverStatus(int(rec.failed_status[b])).name,
-        q=f64(rec.q), root_pose=root, object_pose=obj, theta_r=theta_r, compliance=f64(rec.C),
+        q=f64(rec.q), root_pose=root, object_pose=obj, theta_r=f64(rec.theta_r), compliance=f64(rec.C),
         slot_link=rec.slot_link.numpy()[hs], contact_mask=hmask, contact_point=point,
         contact_normal=-d0[:, hs] * m3, contact_force=fh, contact_sliding=hmask & (lam > 1e-9), slip_ratio=rho,
         env_mask=emask, env_point=(pts[:, es] - sep[:, es, None] * d0[:, es]) * emask[..., None],

@@ -116,7 +116,7 @@ class InferredInteraction:
         """The :class:`~torchhand.interaction.resynth.Interaction` that ``capture resynthesize`` reads."""
         return Interaction(fps=float(self.capture.fps), joint_names=tuple(self.capture.joint_names), C=self.C,
                            theta_r=self.theta_r[:, 6:], root_theta_r=self.theta_r[:, :6],
-                           root_origin=self.root_origin, source="inferred")
+                           root_origin=self.root_origin, source="inferred", theta=self.theta)
 
     def summary(self) -> dict:
         """Where the data came from, the sensors, the largest force and torque, the compliance rules."""

@@ -58,6 +58,7 @@ from ._interaction_file import Interaction, load_interaction, save_interaction
 from ._resynth_output import prepare_result_dir, solution_arrays, write_resynthesis
 from ._resynth_types import ResynthResult, ResynthSettings, Rollout, RolloutStatus, Variant, expand_variants
 from ._rollout_loop import simulate
+from .reach import reach_plan
 from ._rollout_record import hold_frame, object_slip, rollout_result
 from .step import StepObject, StepSettings, displace_root
 
@@ -77,6 +78,18 @@ def _resample(inter: Interaction, h: float):
     w = (t - i0)[:, None]
     lerp = lambda x: (1 - w) * x[i0] + w * x[i1]
     return lerp(inter.theta_r), lerp(inter.root_theta_r), inter.C[i0]
+
+
+def _reach(inter: Interaction, hand, h: float, settings: ResynthSettings):
+    """(ReachPlan at the steps, ReachSettings) when the reach is on, else None."""
+    if not settings.reach.enabled:
+        return None
+    if inter.theta is None:
+        raise InputValueError("--reach: the interaction has no 'theta' (the captured coordinates), so it does not say "
+                              "which fingers push when; interactions from `capture estimate` and `capture "
+                              "from-result` have it")
+    theta = dataclasses.replace(inter, theta_r=inter.theta[:, 6:])
+    return reach_plan(hand, _resample(theta, h)[0], _resample(inter, h)[0], settings.reach), settings.reach
 
 
 def _check_names(inter: Interaction, hand) -> None:
@@ -224,11 +237,11 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
         progress(f"resynthesis: {B} rollout(s), {T} steps of {1e3 * h:.2f} ms, solver {step.solver}, on {device}")
     t_sim = time.perf_counter()
     rec = simulate(hand, obj, env, th, root_r, Ct, E0, settings=step, grip=settings.grip,
-                   settle_steps=settings.settle_steps, progress=progress)
+                   settle_steps=settings.settle_steps, progress=progress, reach=_reach(inter, hand, h, settings))
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
-    rollouts = tuple(rollout_result(rec, b, v, ref.theta_r, np.asarray(v.object_of(scene).com, dtype=np.float64),
-                                    hold) for b, v in enumerate(variants))
+    rollouts = tuple(rollout_result(rec, b, v, np.asarray(v.object_of(scene).com, dtype=np.float64), hold)
+                     for b, v in enumerate(variants))
     scenes = tuple(_output_scene(scene, r, 1.0 / h) for r in rollouts)
     first = next((i for i, r in enumerate(rollouts) if r.ok), 0)
     timings = {"simulate_s": t_sim, "per_step_ms": 1e3 * rec.step_time_s,
