@@ -77,6 +77,7 @@ CAPTURE_OPTIONS = {
     "pyramid_m": _Option("--pyramid-m", "int", 4, 1),
     "solver": _Option("--solver", "str", None, choices=("lemke", "pgs", "auto")),
     "settle_steps": _Option("--settle-steps", "int", 0, 0),
+    "close_open": _Option("--close-open", "bool", False),
     "dtype": _Option("--dtype", "str", "float64", choices=("float64", "float32")),
     "object_contacts": _Option("--object-contacts", "str", "mesh", choices=("mesh", "sdf")),
     "sdf_voxel": _Option("--sdf-voxel", "float", 0.001, 0, strict=True),

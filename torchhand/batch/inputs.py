@@ -105,6 +105,7 @@ def check_capture(scene: str, interaction: str, options: dict, where: str, seen:
         GripSettings(mode=o["grip"], ratio=o["slip_ratio"], min_force=o["min_force"], factor=o["tighten"],
                      floor=o["grip_floor"], delay=o["grip_delay"])
         ResynthSettings(dt=o["dt"], pyramid_m=o["pyramid_m"], solver=o["solver"], settle_steps=o["settle_steps"],
+                        close_open=o["close_open"],
                         dtype=getattr(torch, o["dtype"]), object_contacts=o["object_contacts"],
                         sdf_voxel=o["sdf_voxel"], finger_friction=o["finger_friction"],
                         reach=ReachSettings(enabled=o["reach"], rate=o["reach_rate"], limit=o["reach_limit"]))

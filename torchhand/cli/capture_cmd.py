@@ -148,6 +148,10 @@ def _add_resynthesize(verbs: argparse._SubParsersAction) -> None:
                         "auto with --dtype float32)")
     r.add_argument("--settle-steps", type=int, default=0, metavar="N",
                    help="steps at the first reference before frame 0, object under gravity on the table (0)")
+    r.add_argument("--close-open", action="store_true",
+                   help="before frame 0, close the fingers along the interaction until every finger that pushes in it "
+                        "pushes, and open them again, the wrist held (the paper's settle; needs the interaction's "
+                        "theta)")
     r.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="rollout dtype (float64)")
     r.add_argument("--object-contacts", choices=["mesh", "sdf"], default="mesh",
                    help="hand-object contacts: each link's capsule against the exact mesh (mesh, the checker's "
@@ -248,7 +252,8 @@ def run_resynthesize(args) -> int:
     grip = GripSettings(mode=args.grip, ratio=args.slip_ratio, min_force=args.min_force, factor=args.tighten,
                         floor=args.grip_floor, delay=args.grip_delay)
     settings = ResynthSettings(dt=args.dt, pyramid_m=args.pyramid_m, solver=args.solver,
-                               settle_steps=args.settle_steps, grip=grip, dtype=getattr(torch, args.dtype),
+                               settle_steps=args.settle_steps, close_open=args.close_open, grip=grip,
+                               dtype=getattr(torch, args.dtype),
                                object_contacts=args.object_contacts, sdf_voxel=args.sdf_voxel,
                                finger_friction=args.finger_friction, device=args.device,
                                reach=ReachSettings(enabled=args.reach, rate=args.reach_rate, limit=args.reach_limit))

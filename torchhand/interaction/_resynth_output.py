@@ -74,7 +74,7 @@ def _stats(result: ResynthResult, written: list) -> dict:
             "time_s": result.timings.get("total_s"), "timings_s": result.timings,
             "per_step_ms": result.timings.get("per_step_ms"), "source": result.source,
             "settings": {"dt": 1.0 / result.fps, "pyramid_m": s.pyramid_m, "solver": s.solver,
-                         "margin": s.margin, "settle_steps": s.settle_steps, "grip": dataclasses.asdict(s.grip),
+                         "margin": s.margin, "settle_steps": s.settle_steps, "close_open": s.close_open, "grip": dataclasses.asdict(s.grip),
                          "object_contacts": s.object_contacts, "self_contacts": s.self_contacts,
                          "finger_friction": s.finger_friction, "reach": dataclasses.asdict(s.reach),
                          "sdf_voxel": s.sdf_voxel if s.object_contacts == "sdf" else None},

@@ -65,6 +65,8 @@ class ResynthSettings:
     solved as it would be alone; "auto" - batched PGS, Lemke for stragglers - in float32, where Lemke cycles on the
     rounded problems of resting contacts);
     margin: contact candidate distance, metres; settle_steps: steps at the frame-0 reference before the first frame;
+    close_open: before them, the paper's settle (the fingers' references moved from frame 0 to where every finger
+    the interaction pushes with pushes and back, the root held; needs the interaction's ``theta``);
     support_points: most object-table slots; grip: :class:`~torchhand.interaction.grip.GripSettings`;
     hold_frame: frame the object slip is measured from (None: the first frame at which the reference root has moved
     more than 1 mm from its start); dtype: torch dtype of the rollouts; pgs_max_iters: PGS sweeps before a
@@ -87,6 +89,7 @@ class ResynthSettings:
     solver: str | None = None
     margin: float = 0.005
     settle_steps: int = 0
+    close_open: bool = False
     support_points: int = 16
     grip: GripSettings = GripSettings()
     hold_frame: int | None = None

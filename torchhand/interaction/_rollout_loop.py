@@ -59,14 +59,16 @@ def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor,
 def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tensor, root_r: torch.Tensor,
              C: torch.Tensor, object_pose0: torch.Tensor, *, settings: StepSettings,
              grip: GripSettings = GripSettings(), settle_steps: int = 0, progress=None,
-             reach: tuple | None = None) -> RolloutRecord:
+             reach: tuple | None = None, close_open: tuple = ()) -> RolloutRecord:
     """Run B rollouts over T frames (module docstring of :mod:`torchhand.interaction.resynth`, stages 4-6).
 
     hand: HandModel (the rollouts' dtype); obj: :class:`StepObject` (per-rollout ``masses``/``mus`` allowed);
     env: the table or None; theta_r: (B, T, D) rad; root_r: (B, T, 4, 4); C: (B, T, 6 + D) (variant scales applied);
     object_pose0: (B, 4, 4); settings: :class:`StepSettings`; grip: :class:`GripSettings`; progress: callable(str);
     reach: (:class:`~torchhand.interaction.reach.ReachPlan` over the T steps, its
-    :class:`~torchhand.interaction.reach.ReachSettings`) or None
+    :class:`~torchhand.interaction.reach.ReachSettings`) or None; close_open: the frames whose finger references the
+    hand moves through before the first frame, the root held at frame 0's (the paper's settle: closing and opening
+    again), then ``settle_steps`` steps at frame 0's reference
     returns: :class:`~torchhand.interaction._rollout_record.RolloutRecord`: per-frame tensors (CPU), per-rollout
         ``failed_step`` (B,) (-1: completed), ``failed_status`` (B,) int8, ``grip_events`` list of
         (rollout, frame, link), ``onset`` (B,); fields also read by key (``rec["q"]``)
@@ -79,7 +81,7 @@ def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tenso
     # gained 7 % at 16 rollouts and nothing at one), and the results must not depend on the cores
     with threadpool_limits(limits=1, user_api="blas"), _one_torch_thread():
         return _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress,
-                         reach)
+                         reach, tuple(close_open))
 
 
 @contextlib.contextmanager
@@ -107,12 +109,15 @@ def _next_reference(theta_r: torch.Tensor, root_r: torch.Tensor, k: int) -> tupl
     return 2 * theta_r[:, -1] - theta_r[:, -2], last @ torch.linalg.inv(before) @ last
 
 
-def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress, reach):
+def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress, reach,
+              close_open):
     B, T, D = theta_r.shape
     like = theta_r
     state = _start(hand, obj, env, theta_r, root_r, object_pose0, settings)
     c = state.contacts
     hand_obj = (c.body == BODY_OBJECT).cpu()
+    for j in close_open:
+        state, _ = quasi_static_step(state, hand, theta_r[:, j], root_r[:, 0], C[:, 0], obj, env, settings)
     for _ in range(settle_steps):
         state, _ = quasi_static_step(state, hand, theta_r[:, 0], root_r[:, 0], C[:, 0], obj, env, settings)
     paths = path_mask(hand, c.link)

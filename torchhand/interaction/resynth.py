@@ -15,10 +15,9 @@ Pipeline (pure stages over frozen state)::
 2. Variants: each rollout b has its object mass (inertia scaled with it), its hand-object friction and a scale of the
    whole compliance C; they share one batched step (:func:`~torchhand.interaction.step.quasi_static_step`).
 3. Set-up (design note Stage 8, §3 item 11): the object starts at the scene's frame-0 pose on the table; the hand
-   starts at the reference's frame 0. Deviation: the paper pushes the object to an improved start by simulating the
-   grasping motion until every finger touches and back; here ``settle_steps`` steps at the frame-0 reference let
-   the object come to rest on the table first, and the closing motion is expected in the interaction itself (the
-   captured approach and closing, or a constructed one).
+   starts at the reference's frame 0. With ``close_open`` the object is first pushed to an improved start as the
+   paper does (the grasping motion until every finger pushes and back); then ``settle_steps`` steps at the frame-0
+   reference let it come to rest on the table.
 4. Steps k -> k + 1 (§7.1): contacts of the hand with the object (each link's capsule against the exact mesh, the
    geometry ``torchhand check`` measures; ``object_contacts="sdf"`` for a grid instead) and the table, of the object
    with the table (object-plane slots, an extension: see :mod:`.step`) and between fingers (finger-finger slots, an
@@ -58,7 +57,7 @@ from ._interaction_file import Interaction, load_interaction, save_interaction
 from ._resynth_output import prepare_result_dir, solution_arrays, write_resynthesis
 from ._resynth_types import ResynthResult, ResynthSettings, Rollout, RolloutStatus, Variant, expand_variants
 from ._rollout_loop import simulate
-from .reach import reach_plan
+from .reach import ReachSettings, reach_plan
 from ._rollout_record import hold_frame, object_slip, rollout_result
 from .step import StepObject, StepSettings, displace_root
 
@@ -88,8 +87,29 @@ def _reach(inter: Interaction, hand, h: float, settings: ResynthSettings):
         raise InputValueError("--reach: the interaction has no 'theta' (the captured coordinates), so it does not say "
                               "which fingers push when; interactions from `capture estimate` and `capture "
                               "from-result` have it")
+    return _plan(inter, hand, h, settings.reach), settings.reach
+
+
+def _plan(inter: Interaction, hand, h: float, reach: ReachSettings):
+    """The reach plan of the interaction at the steps (which fingers the reference pushes with, and where)."""
     theta = dataclasses.replace(inter, theta_r=inter.theta[:, 6:])
-    return reach_plan(hand, _resample(theta, h)[0], _resample(inter, h)[0], settings.reach), settings.reach
+    return reach_plan(hand, _resample(theta, h)[0], _resample(inter, h)[0], reach)
+
+
+def _close_open(inter: Interaction, hand, h: float, settings: ResynthSettings) -> tuple:
+    """The paper's settle (§8.3): the steps of the grasping motion from frame 0 until every finger the interaction
+    ever pushes with pushes (or, if never all at once, the first step with the most of them), then back to frame 0;
+    () when ``settings.close_open`` is off."""
+    if not settings.close_open:
+        return ()
+    if inter.theta is None:
+        raise InputValueError("--close-open: the interaction has no 'theta' (the captured coordinates), so it does "
+                              "not say when the fingers touch; interactions from `capture estimate` and `capture "
+                              "from-result` have it")
+    pushes = _plan(inter, hand, h, settings.reach).pushes.numpy()
+    count = (pushes & pushes.any(0)).sum(1)
+    k = int(np.argmax(count))
+    return tuple(range(1, k + 1)) + tuple(range(k - 1, -1, -1))
 
 
 def _check_names(inter: Interaction, hand) -> None:
@@ -237,7 +257,8 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
         progress(f"resynthesis: {B} rollout(s), {T} steps of {1e3 * h:.2f} ms, solver {step.solver}, on {device}")
     t_sim = time.perf_counter()
     rec = simulate(hand, obj, env, th, root_r, Ct, E0, settings=step, grip=settings.grip,
-                   settle_steps=settings.settle_steps, progress=progress, reach=_reach(inter, hand, h, settings))
+                   settle_steps=settings.settle_steps, progress=progress, reach=_reach(inter, hand, h, settings),
+                   close_open=_close_open(inter, hand, h, settings))
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
     rollouts = tuple(rollout_result(rec, b, v, np.asarray(v.object_of(scene).com, dtype=np.float64), hold)
