@@ -9,6 +9,7 @@ object slip in the hand frame, the checker's verdict and its failing figures, an
 finger pushes the object with more than 0.2 N, in the reference and in the resynthesis.
 
     python scripts/survey_inferred.py RESULT --out DIR [--solutions 0,3,6] [--dt 1/240] [--overwrite]
+        [--resynth-args "--reach --close-open"]
 
 Writes DIR/inf<i>/ (the inferred interaction), DIR/same<i>/ (the resynthesis, a result directory),
 DIR/summary.json (atomically) and DIR/survey.png (turn and slip per solution, the marks of 10 % and 5 mm drawn).
@@ -33,7 +34,7 @@ def _fraction(text: str) -> float:
     return float(num) / float(den or 1)
 
 
-def survey_one(result: Path, i: int, out: Path, dt: float, over: list) -> dict:
+def survey_one(result: Path, i: int, out: Path, dt: float, over: list, extra: list) -> dict:
     """One solution: inferred, resynthesised on the same object, checked; the row's figures."""
     from torchhand.check import check_result
     from torchhand.io.result import load_result
@@ -44,7 +45,7 @@ def survey_one(result: Path, i: int, out: Path, dt: float, over: list) -> dict:
              str(inferred), *over]) != 0:
         return {"solution": i, "frames": frames, "completed": False, "why": "from-result failed"}
     rc = _cli(["capture", "resynthesize", str(inferred / "interaction.npz"), "--scene", str(inferred / "scene"),
-               "--out", str(dest), "--dt", repr(dt), "--solver", "lemke", "--settle-steps", "8", *over])
+               "--out", str(dest), "--dt", repr(dt), "--solver", "lemke", "--settle-steps", "8", *extra, *over])
     stats = json.loads((dest / "stats.json").read_text()) if (dest / "stats.json").is_file() else {}
     roll = (stats.get("rollouts") or [{}])[0]
     if rc != 0 or roll.get("status") != "COMPLETED":
@@ -116,6 +117,7 @@ def main(argv=None) -> int:
     p.add_argument("--solutions", default=None, help="comma-separated solution indices (default: all)")
     p.add_argument("--dt", default="1/240", help="resynthesis step, seconds (1/240)")
     p.add_argument("--overwrite", action="store_true", help="replace earlier outputs")
+    p.add_argument("--resynth-args", default="", help="more `capture resynthesize` flags, e.g. \"--reach\"")
     a = p.parse_args(argv)
     from torchhand.io.result import load_result
 
@@ -128,7 +130,7 @@ def main(argv=None) -> int:
         return 2
     out.mkdir(parents=True, exist_ok=True)
     over = ["--overwrite"] if a.overwrite else []
-    rows = [survey_one(result, i, out, _fraction(a.dt), over) for i in picks]
+    rows = [survey_one(result, i, out, _fraction(a.dt), over, a.resynth_args.split()) for i in picks]
     print(f"\n{'sol':>3}  {'frames':<7} {'ref turn':>8} {'turn':>6} {'share':>6} {'lag max':>7} {'slip mm':>7}  "
           f"{'check':<5}  fingers: reference -> resynthesis")
     for r in rows:
@@ -143,7 +145,8 @@ def main(argv=None) -> int:
     follow = [r for r in done if abs(1 - r["turn_share"]) <= 0.1 and r["max_slip_mm"] <= 5 and r["check_passed"]]
     print(f"\n{len(follow)} of {len(rows)} follow the reference (turn within 10 %, slip <= 5 mm, check passed)")
     tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps({"result": str(result), "dt": _fraction(a.dt), "rows": rows}, indent=1, default=float))
+    tmp.write_text(json.dumps({"result": str(result), "dt": _fraction(a.dt), "resynth_args": a.resynth_args,
+                               "rows": rows}, indent=1, default=float))
     os.replace(tmp, out / "summary.json")
     if done:
         plot(rows, out / "survey.png")

@@ -95,18 +95,23 @@ def _one_torch_thread():
         torch.set_num_threads(n)
 
 
-def _next_reference(theta_r: torch.Tensor, root_r: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The reference step k moves to: frame k + 1's, and after the last frame the last frame's motion continued
-    for one step (joints linearly, the root by its last relative motion), so that the last frame's forces carry the
-    motion on instead of stopping the hand within one step while the object moves (the checker's balance at the
-    last frame takes the acceleration of the frame before it)."""
-    T = theta_r.shape[1]
-    if k + 1 < T:
-        return theta_r[:, k + 1], root_r[:, k + 1]
-    if T < 2:
-        return theta_r[:, -1], root_r[:, -1]
-    last, before = root_r[:, -1], root_r[:, -2]
-    return 2 * theta_r[:, -1] - theta_r[:, -2], last @ torch.linalg.inv(before) @ last
+def _last_frame(state: StepState, before: FrameRecord | None, Ck: torch.Tensor) -> FrameRecord:
+    """The last frame T - 1: the state as it is, with the forces it holds (f^{T-1}, solved by the step into it, which
+    the hand's pose is in equilibrium with), carried on its own contact slots. There is no step out of it: frame
+    T - 1 of the interaction has no next frame to move to, and the checker's balance at the last frame takes the
+    acceleration of the frame before, which these forces produced. Its solver status, residual and slips are the
+    step's into it."""
+    sc = state.contacts
+    cpu = lambda x: x.detach().cpu()  # noqa: E731
+    B, N = sc.mask.shape
+    zeros = torch.zeros(B, N, dtype=state.q.dtype)
+    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root),
+                       object_pose=cpu(state.object_pose), C=cpu(Ck), points=cpu(sc.points), d0=cpu(sc.d0),
+                       sep=cpu(sc.separation), body_mask=cpu(sc.mask), forces=cpu(state.forces),
+                       lam=zeros if before is None else before.lam, mu=zeros if before is None else before.mu,
+                       status=torch.zeros(B, dtype=torch.int8) if before is None else before.status,
+                       residual=torch.zeros(B, dtype=state.q.dtype) if before is None else before.residual,
+                       theta_err=cpu(state.theta_err.abs().amax(-1)), joint_clamp=torch.zeros(B, dtype=state.q.dtype))
 
 
 def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress, reach,
@@ -128,11 +133,10 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
     frames, events, walls = [], [], []
     offset = like.new_zeros(B, D)
     t0 = time.perf_counter()
-    for k in range(T):
+    for k in range(T - 1):
         t_k = time.perf_counter()
         Ck = C[:, k] * gs.scale
-        th_next, root_next = _next_reference(theta_r, root_r, k)
-        new, rep = quasi_static_step(state, hand, th_next + offset, root_next, Ck, obj, env, settings)
+        new, rep = quasi_static_step(state, hand, theta_r[:, k + 1] + offset, root_r[:, k + 1], Ck, obj, env, settings)
         f, mu = _slot_forces(rep, state.contacts, B)
         frames.append(_frame(state, rep, Ck, f, mu))
         bad = alive & (rep.status.cpu() != _CONVERGED)
@@ -150,8 +154,10 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
         walls.append(time.perf_counter() - t_k)
         if progress is not None and (k + 1) % 50 == 0:
             el = time.perf_counter() - t0
-            progress(f"step {k + 1}/{T}: {1e3 * el / (k + 1):.1f} ms/step, {int(alive.sum())}/{B} rollouts running")
+            progress(f"step {k + 1}/{T - 1}: {1e3 * el / (k + 1):.1f} ms/step, {int(alive.sum())}/{B} rollouts "
+                     "running")
+    frames.append(_last_frame(state, frames[-1] if frames else None, C[:, T - 1] * gs.scale))
     return RolloutRecord.from_frames(
         frames, failed_step=failed_step, failed_status=failed_status, grip_events=events, onset=gs.onset.cpu(),
         slot_link=c.link.cpu(), slot_body=c.body.cpu(), hand_obj=hand_obj,
-        step_time_s=(time.perf_counter() - t0) / max(T, 1), step_times_s=tuple(walls))
+        step_time_s=(time.perf_counter() - t0) / max(T - 1, 1), step_times_s=tuple(walls))

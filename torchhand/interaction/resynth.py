@@ -27,8 +27,9 @@ Pipeline (pure stages over frozen state)::
 5. Grip adjustment (§8.1, :mod:`.grip`): the compliance of each rollout is scaled down on slip.
 6. A rollout whose LCP is not solved at step k stops there (its status names the step); the others go on.
 
-Frame k of a rollout holds the state at t_k (q, root, object pose, contact points and normals) and the contact
-forces f^{k+1} solved at step k, which act on the object between t_k and t_{k+1} (the explicit-in-position,
+Frame k < T - 1 of a rollout holds the state at t_k (q, root, object pose, contact points and normals) and the
+contact forces f^{k+1} solved at step k (the last frame, which has no step out of it, the forces of the step into
+it), which act on the object between t_k and t_{k+1} (the explicit-in-position,
 implicit-in-force discretisation of §7.1.2), so that the second difference of the object's positions around frame
 k matches the forces stored at frame k. The written contact point of a hand contact is on the object surface
 (the hand point moved back along the normal by its separation).
