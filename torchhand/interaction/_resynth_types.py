@@ -80,8 +80,9 @@ class ResynthSettings:
     instead of passing through it; finger_friction: friction coefficient of those slots (0: frictionless);
     lemke_warm: Lemke starts from the previous step's support
     (:class:`~torchhand.interaction.step.StepSettings`); reach: :class:`~torchhand.interaction.reach.ReachSettings`
-    (a finger the reference pushes with that does not touch closes on; off by default); device: "cpu" or "cuda" (or "cuda:N"), where the step's
-    tensors live (the exact-mesh queries and the per-rollout LCPs run on the CPU either way)
+    (a finger the reference pushes with that does not touch closes on; off by default); device: "cpu" or "cuda"
+    (or "cuda:N"), where the step's tensors live (the exact-mesh queries and the per-rollout LCPs run on the CPU
+    either way)
     """
 
     dt: float | None = None

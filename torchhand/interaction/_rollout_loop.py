@@ -49,8 +49,9 @@ def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor,
     """Frame k on the CPU: the state at t_k and what step k solved."""
     sc = state.contacts
     cpu = lambda x: x.detach().cpu()
-    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root), object_pose=cpu(state.object_pose), C=cpu(Ck),
-                       points=cpu(sc.points), d0=cpu(sc.d0), sep=cpu(sc.separation), body_mask=cpu(sc.mask),
+    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root),
+                       object_pose=cpu(state.object_pose), C=cpu(Ck), points=cpu(sc.points), d0=cpu(sc.d0),
+                       sep=cpu(sc.separation), body_mask=cpu(sc.mask),
                        forces=cpu(f), lam=cpu(rep.lam), mu=cpu(mu), status=cpu(rep.status),
                        residual=cpu(rep.residual), theta_err=cpu(state.theta_err.abs().amax(-1)),
                        joint_clamp=cpu(rep.joint_clamp))
