@@ -109,7 +109,8 @@ def test_close_open_pushes_a_misplaced_box_into_the_grasp(tmp_path):
     base = resynthesize(inter, scene, settings=ResynthSettings()).rollouts[0]
     inter = dataclasses.replace(inter, theta=np.concatenate([inter.root_theta_r, np.asarray(base.q)], 1))
     hand = track_hand(scene.hands[0]).to("cpu", torch.float64)
-    assert R._close_open(inter, hand, 1 / 60, ResynthSettings(close_open=True)) == (1, 2, 3, 4, 3, 2, 1, 0)
+    plan = R._reference_plan(inter, hand, 1 / 60, inter.theta_r, ResynthSettings(close_open=True))
+    assert R._close_open(plan) == (1, 2, 3, 4, 3, 2, 1, 0)
     on = ResynthSettings(close_open=True)
     same = resynthesize(inter, scene, settings=on).rollouts[0].object_pose
     assert np.abs(same - base.object_pose).max() < 1e-6

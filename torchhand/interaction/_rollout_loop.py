@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from dataclasses import replace
 
 import torch
 
@@ -45,16 +46,21 @@ def _slot_forces(rep: StepReport, sc: Contacts, B: int):
     return f, mu
 
 
+def _state_fields(state: StepState, Ck: torch.Tensor) -> dict:
+    """The FrameRecord fields of the state itself, on the CPU: q, theta_r, root, object pose, the compliance Ck
+    applied, its contact slots and theta_err."""
+    sc = state.contacts
+    cpu = lambda x: x.detach().cpu()  # noqa: E731
+    return dict(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root), object_pose=cpu(state.object_pose),
+                C=cpu(Ck), points=cpu(sc.points), d0=cpu(sc.d0), sep=cpu(sc.separation), body_mask=cpu(sc.mask),
+                theta_err=cpu(state.theta_err.abs().amax(-1)))
+
+
 def _frame(state: StepState, rep: StepReport, Ck: torch.Tensor, f: torch.Tensor, mu: torch.Tensor) -> FrameRecord:
     """Frame k on the CPU: the state at t_k and what step k solved."""
-    sc = state.contacts
-    cpu = lambda x: x.detach().cpu()
-    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root),
-                       object_pose=cpu(state.object_pose), C=cpu(Ck), points=cpu(sc.points), d0=cpu(sc.d0),
-                       sep=cpu(sc.separation), body_mask=cpu(sc.mask),
-                       forces=cpu(f), lam=cpu(rep.lam), mu=cpu(mu), status=cpu(rep.status),
-                       residual=cpu(rep.residual), theta_err=cpu(state.theta_err.abs().amax(-1)),
-                       joint_clamp=cpu(rep.joint_clamp))
+    return FrameRecord(**_state_fields(state, Ck), forces=f.detach().cpu(), lam=rep.lam.detach().cpu(),
+                       mu=mu.detach().cpu(), status=rep.status.detach().cpu(), residual=rep.residual.detach().cpu(),
+                       joint_clamp=rep.joint_clamp.detach().cpu())
 
 
 def simulate(hand, obj: StepObject, env: TablePlane | None, theta_r: torch.Tensor, root_r: torch.Tensor,
@@ -96,28 +102,21 @@ def _one_torch_thread():
         torch.set_num_threads(n)
 
 
-def _last_frame(state: StepState, before: FrameRecord | None, Ck: torch.Tensor) -> FrameRecord:
+def _last_frame(state: StepState, before: FrameRecord, Ck: torch.Tensor) -> FrameRecord:
     """The last frame T - 1: the state as it is, with the forces it holds (f^{T-1}, solved by the step into it, which
     the hand's pose is in equilibrium with), carried on its own contact slots. There is no step out of it: frame
     T - 1 of the interaction has no next frame to move to, and the checker's balance at the last frame takes the
     acceleration of the frame before, which these forces produced. Its solver status, residual and slips are the
-    step's into it."""
-    sc = state.contacts
-    cpu = lambda x: x.detach().cpu()  # noqa: E731
-    B, N = sc.mask.shape
-    zeros = torch.zeros(B, N, dtype=state.q.dtype)
-    return FrameRecord(q=cpu(state.q), theta_r=cpu(state.theta_r), root=cpu(state.root),
-                       object_pose=cpu(state.object_pose), C=cpu(Ck), points=cpu(sc.points), d0=cpu(sc.d0),
-                       sep=cpu(sc.separation), body_mask=cpu(sc.mask), forces=cpu(state.forces),
-                       lam=zeros if before is None else before.lam, mu=zeros if before is None else before.mu,
-                       status=torch.zeros(B, dtype=torch.int8) if before is None else before.status,
-                       residual=torch.zeros(B, dtype=state.q.dtype) if before is None else before.residual,
-                       theta_err=cpu(state.theta_err.abs().amax(-1)), joint_clamp=torch.zeros(B, dtype=state.q.dtype))
+    step's into it (``before``, frame T - 2)."""
+    return replace(before, **_state_fields(state, Ck), forces=state.forces.detach().cpu(),
+                   joint_clamp=torch.zeros_like(before.joint_clamp))
 
 
 def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, settle_steps, progress, reach,
               close_open):
     B, T, D = theta_r.shape
+    if T < 2:
+        raise InputValueError(f"simulate: theta_r needs at least 2 frames, got {T}")
     like = theta_r
     state = _start(hand, obj, env, theta_r, root_r, object_pose0, settings)
     c = state.contacts
@@ -157,7 +156,7 @@ def _simulate(hand, obj, env, theta_r, root_r, C, object_pose0, settings, grip, 
             el = time.perf_counter() - t0
             progress(f"step {k + 1}/{T - 1}: {1e3 * el / (k + 1):.1f} ms/step, {int(alive.sum())}/{B} rollouts "
                      "running")
-    frames.append(_last_frame(state, frames[-1] if frames else None, C[:, T - 1] * gs.scale))
+    frames.append(_last_frame(state, frames[-1], C[:, T - 1] * gs.scale))
     return RolloutRecord.from_frames(
         frames, failed_step=failed_step, failed_status=failed_status, grip_events=events, onset=gs.onset.cpu(),
         slot_link=c.link.cpu(), slot_body=c.body.cpu(), hand_obj=hand_obj,

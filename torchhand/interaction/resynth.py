@@ -58,8 +58,8 @@ from ._interaction_file import Interaction, load_interaction, save_interaction
 from ._resynth_output import prepare_result_dir, solution_arrays, write_resynthesis
 from ._resynth_types import ResynthResult, ResynthSettings, Rollout, RolloutStatus, Variant, expand_variants
 from ._rollout_loop import simulate
-from .reach import ReachSettings, reach_plan
 from ._rollout_record import hold_frame, object_slip, rollout_result
+from .reach import reach_plan
 from .step import StepObject, StepSettings, displace_root
 
 __all__ = ["Interaction", "load_interaction", "save_interaction", "Variant", "expand_variants", "ResynthSettings",
@@ -80,36 +80,25 @@ def _resample(inter: Interaction, h: float):
     return lerp(inter.theta_r), lerp(inter.root_theta_r), inter.C[i0]
 
 
-def _reach(inter: Interaction, hand, h: float, settings: ResynthSettings):
-    """(ReachPlan at the steps, ReachSettings) when the reach is on, else None."""
-    if not settings.reach.enabled:
+def _reference_plan(inter: Interaction, hand, h: float, theta_r: np.ndarray, settings: ResynthSettings):
+    """The reach plan of the interaction at the steps (which fingers the reference pushes with, and where), for
+    ``--reach`` and ``--close-open``; None when neither is on. theta_r: the reference at the steps, (T, D)."""
+    wanted = [flag for flag, on in (("--reach", settings.reach.enabled), ("--close-open", settings.close_open)) if on]
+    if not wanted:
         return None
     if inter.theta is None:
-        raise InputValueError("--reach: the interaction has no 'theta' (the captured coordinates), so it does not say "
-                              "which fingers push when; interactions from `capture estimate` and `capture "
+        raise InputValueError(f"{wanted[0]}: the interaction has no 'theta' (the captured coordinates), so it does "
+                              "not say which fingers push when; interactions from `capture estimate` and `capture "
                               "from-result` have it")
-    return _plan(inter, hand, h, settings.reach), settings.reach
+    theta = _resample(dataclasses.replace(inter, theta_r=inter.theta[:, 6:]), h)[0]
+    return reach_plan(hand, theta, theta_r, settings.reach)
 
 
-def _plan(inter: Interaction, hand, h: float, reach: ReachSettings):
-    """The reach plan of the interaction at the steps (which fingers the reference pushes with, and where)."""
-    theta = dataclasses.replace(inter, theta_r=inter.theta[:, 6:])
-    return reach_plan(hand, _resample(theta, h)[0], _resample(inter, h)[0], reach)
-
-
-def _close_open(inter: Interaction, hand, h: float, settings: ResynthSettings) -> tuple:
+def _close_open(plan) -> tuple:
     """The paper's settle (§8.3): the steps of the grasping motion from frame 0 until every finger the interaction
-    ever pushes with pushes (or, if never all at once, the first step with the most of them), then back to frame 0;
-    () when ``settings.close_open`` is off."""
-    if not settings.close_open:
-        return ()
-    if inter.theta is None:
-        raise InputValueError("--close-open: the interaction has no 'theta' (the captured coordinates), so it does "
-                              "not say when the fingers touch; interactions from `capture estimate` and `capture "
-                              "from-result` have it")
-    pushes = _plan(inter, hand, h, settings.reach).pushes.numpy()
-    count = (pushes & pushes.any(0)).sum(1)
-    k = int(np.argmax(count))
+    ever pushes with pushes (or, if never all at once, the first step with the most of them), then back to frame 0."""
+    pushes = plan.pushes.numpy()
+    k = int(np.argmax((pushes & pushes.any(0)).sum(1)))
     return tuple(range(1, k + 1)) + tuple(range(k - 1, -1, -1))
 
 
@@ -257,9 +246,11 @@ def resynthesize(inter: Interaction, scene, *, variants=(Variant(),), settings: 
     if progress is not None:
         progress(f"resynthesis: {B} rollout(s), {T} steps of {1e3 * h:.2f} ms, solver {step.solver}, on {device}")
     t_sim = time.perf_counter()
+    plan = _reference_plan(inter, hand, h, ref.theta_r, settings)
     rec = simulate(hand, obj, env, th, root_r, Ct, E0, settings=step, grip=settings.grip,
-                   settle_steps=settings.settle_steps, progress=progress, reach=_reach(inter, hand, h, settings),
-                   close_open=_close_open(inter, hand, h, settings))
+                   settle_steps=settings.settle_steps, progress=progress,
+                   reach=(plan, settings.reach) if settings.reach.enabled else None,
+                   close_open=_close_open(plan) if settings.close_open else ())
     t_sim = time.perf_counter() - t_sim
     hold = hold_frame(ref.root_r.double().numpy(), settings.hold_frame)
     rollouts = tuple(rollout_result(rec, b, v, np.asarray(v.object_of(scene).com, dtype=np.float64), hold)
