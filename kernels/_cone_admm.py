@@ -40,6 +40,7 @@ import torch
 
 from ._cone_polish import newton_fixed_point, newton_nearest_point
 from ._cone_proj import project_cone
+from ._rows import at_least_two
 from .status import SolverStatus
 
 _CONVERGED = int(SolverStatus.CONVERGED)
@@ -232,7 +233,7 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
     idx = torch.arange(B, device=device)
     if decided is not None:
         iters_out = torch.where(decided, 0, iters_out)
-        idx = (~decided).nonzero().squeeze(-1)                            # host sync (a check at iteration 0)
+        idx = at_least_two((~decided).nonzero().squeeze(-1))              # host sync (a check at iteration 0)
         prob, w0 = NormalisedProblem(*(t.index_select(0, idx) for t in prob)), w0.index_select(0, idx)
         B = idx.numel()
     p = prob
@@ -279,7 +280,7 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
             ready = torch.linalg.vector_norm(r_vec, dim=-1) < settings.polish_below
             tail = it >= settings.tail_from
             stable = (kind == st.kind_prev).all(-1) | (it == 0)
-            sel = (open_ & (tail | (fresh & ready & stable))).nonzero().squeeze(-1)          # host sync
+            sel = at_least_two((open_ & (tail | (fresh & ready & stable))).nonzero().squeeze(-1))  # host sync
             if sel.numel():
                 ps = NormalisedProblem(*(t.index_select(0, sel) for t in p))
                 rs = rho[sel]
@@ -298,6 +299,7 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
             sel = (open_ & ~converged & (tail | ((cert < settings.cert_polish)
                    & (it - dist_it >= max(settings.polish_retry, it // 2))))
                    ).nonzero().squeeze(-1)
+            sel = at_least_two(sel)
             if sel.numel():
                 ps = NormalisedProblem(*(t.index_select(0, sel) for t in p))
                 q0 = torch.bmm(ps.M, ps.b.unsqueeze(-1)).squeeze(-1)
@@ -327,7 +329,7 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
             z_out[gidx] = z[done]
             status_out[gidx] = torch.where(converged[done], _CONVERGED, _INFEASIBLE).to(torch.int8)
             iters_out[gidx] = it
-            keep = (~done).nonzero().squeeze(-1)
+            keep = at_least_two((~done).nonzero().squeeze(-1))
             idx = idx.index_select(0, keep)
             p = NormalisedProblem(*(t.index_select(0, keep) for t in p))
             st = _Work(*(t.index_select(0, keep) for t in st))

@@ -23,6 +23,7 @@ import math
 import torch
 
 from ._cone_proj import project_cone
+from ._rows import at_least_two
 
 
 def project_cone_with_jacobian(w: torch.Tensor, mu: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -120,7 +121,7 @@ def _newton(x: torch.Tensor, data: tuple, residual_and_step, steps: int, ftol: f
             stop |= fn > give_up * f0
         if bool(stop.any()):                                                  # host sync (at a check only)
             out[idx[stop]] = x[stop]
-            keep = (~stop).nonzero().squeeze(-1)
+            keep = at_least_two((~stop).nonzero().squeeze(-1))
             idx, x, f0 = idx[keep], x[keep], f0[keep]
             data = tuple(t.index_select(0, keep) for t in data)
             if not idx.numel():

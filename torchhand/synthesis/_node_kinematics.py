@@ -3,13 +3,12 @@ the guiding points, then the verdicts on joint limits, guide error and penetrati
 
 from __future__ import annotations
 
-
 import torch
 
+from torchhand.kernels._rows import at_least_two
 
 from ..hand.collision import hand_object_penetration
 from .problem import SynthesisProblem
-
 from ._node_geometry import _axis_points, _finger_depth, _rotate, _transform, capsule_point_facing
 from ._node_records import Guides, NodeTestSettings
 
@@ -52,6 +51,7 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
     best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
     best_A = best_g = None
+    stopped = torch.zeros(N, dtype=torch.bool, device=q.device)
     for it in range(iters + 1):
         if roll is not None:
             facing = capsule_point_facing(hand, hand.forward_kinematics(q, root), slot_link.expand(N, P), target)
@@ -94,7 +94,7 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         better = cost <= best_cost                                          # (N, G)
         lam = torch.where(better, lam / 3, lam * 10).clamp(1e-9, 1e3)
         best_cost = torch.where(better, cost, best_cost)
-        bj = better[:, joint_group]                                         # (N, D) per joint
+        bj = better[:, joint_group] & ~stopped[:, None]                     # (N, D) per joint
         best_q = torch.where(bj, q, best_q)
         # A is block-diagonal by finger, so replacing whole rows keeps each finger's block consistent
         best_A = A if best_A is None else torch.where(bj[..., None], A, best_A)
@@ -109,9 +109,12 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         y = torch.linalg.solve_triangular(L, -best_g.unsqueeze(-1), upper=False)
         step = torch.linalg.solve_triangular(L.transpose(-1, -2), y, upper=True).squeeze(-1)
         q = torch.minimum(torch.maximum(best_q + step, lo), hi)
-        # converged everywhere (steps below 1e-4 rad): stop early; checked every 4 iterations (a host sync)
-        if it % 4 == 3 and bool(((q - best_q).abs().amax() < 1e-4)):
-            break
+        # a row whose steps fell below 1e-4 rad keeps its pose (checked every 4 iterations, so a row's answer
+        # does not depend on the other rows of its batch); all of them: stop (a host sync)
+        if it % 4 == 3:
+            stopped = stopped | ((q - best_q).abs().amax(-1) < 1e-4)
+            if bool(stopped.all()):
+                break
     return best_q
 
 
@@ -132,10 +135,13 @@ def rolled_local(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, gu
     out = guides.local.clone()
     if guides.roll is None:
         return out
+    N = t.shape[0]
+    rows = at_least_two(torch.arange(N, device=t.device))   # a batch of one would take other code paths
+    t, q, obj, link = t[rows], q[rows], guides.obj[rows], guides.link[rows]
     for h, hand in enumerate(problem.hands):
-        target, _ = guide_targets(problem, t, guides.obj[:, h], s)
-        facing = capsule_point_facing(hand, hand.forward_kinematics(q[:, h], problem.root[h, t]), guides.link[:, h],
-                                      target)
+        target, _ = guide_targets(problem, t, obj[:, h], s)
+        facing = capsule_point_facing(hand, hand.forward_kinematics(q[:, h], problem.root[h, t]), link[:, h],
+                                      target)[:N]
         out[:, h] = torch.where(guides.roll[:, h, :, None], facing, out[:, h])
     return out
 
@@ -197,7 +203,7 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     # into the object: the previous pose, or on a first frame the open hand. Fingers are independent in the IK
     # (every joint belongs to one finger), so each finger keeps the attempt in which it penetrates least.
     finger_depth = _finger_depth(hand, pen.deepest_value)
-    retry = ((finger_depth > s.pen_tol) & ~act).any(-1).nonzero().squeeze(-1)
+    retry = at_least_two(((finger_depth > s.pen_tol) & ~act).any(-1).nonzero().squeeze(-1))
     if retry.numel():
         R = retry.numel()
         open_q = torch.zeros(D, dtype=dtype, device=device).clamp(lim[:, 0], lim[:, 1])

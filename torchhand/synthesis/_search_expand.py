@@ -20,7 +20,7 @@ from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_ZER
 if TYPE_CHECKING:  # pragma: no cover
     from .search import _Search
 
-__all__ = ["Candidates", "WindowOutcome", "Expansion", "expand"]
+__all__ = ["Candidates", "WindowOutcome", "Expansion", "expand", "candidates", "test_windows", "regroup"]
 
 _STATIC, _SLIDE, _RELOCATE, _FREE, _ROLL = 0, 1, 2, 3, 4   # a finger's part in a plan: keep, slide, relocate, let
 #                                                            go, roll (keep the object point, the finger's moves)
@@ -145,9 +145,24 @@ def candidates(search: "_Search", jobs) -> tuple[list, Candidates]:
 def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
     """Run the node test over every candidate's window, frame by frame, the sliding guides advanced along the
     surface; a candidate stops at its first infeasible frame."""
-    p, H, F = search.p, search.H, search.F
+    owner = torch.zeros(len(cand), dtype=torch.long)
+    return test_windows(search.p, search.ns, search.s.slide_speed, c, [search.stats], owner)
+
+
+def _tally(books: list, owner: torch.Tensor, rows: torch.Tensor) -> list[int]:
+    """How many of ``rows`` (indices into ``owner``) belong to each of the ``books``."""
+    return torch.bincount(owner[rows.cpu()], minlength=len(books)).tolist()
+
+
+def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: torch.Tensor,
+                 on_call=None) -> WindowOutcome:
+    """:func:`run_windows` for candidates of one or many searches that share the problem's node-test fields (the
+    same scene prepared once, :mod:`.multi`): the rows are tested together and each frame's counters go to the
+    :class:`~.search.SearchStats` in ``books`` that owns the row (``owner`` (N,) long, CPU). A row's outputs do
+    not depend on the other rows of the batch. on_call: optional callable(n) with each node-test call's batch size."""
+    H, F = p.H, p.F
     device = p.device
-    N = len(cand)
+    N = int(c.t0.shape[0])
     t0 = c.t0
     w = c.w
     active = c.active
@@ -163,7 +178,7 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
     prev_mask = c.prev_mask
     roll = c.roll
     any_roll = bool(roll.any())
-    step = search.s.slide_speed / p.fps
+    step = slide_speed / p.fps
     alive = torch.ones(N, dtype=torch.bool, device=device)
     frames = {k: [] for k in KEEP}
     g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
@@ -192,17 +207,21 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
                         roll=roll[sel] & act_k if any_roll else None)
         lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
         res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
-                            weights[sel], settings=search.ns, prev_mask=prev_mask[sel])
-        search.stats.nodes_tested += int(sel.numel())
+                            weights[sel], settings=ns, prev_mask=prev_mask[sel])
+        if on_call is not None:
+            on_call(int(sel.numel()))
         ok = res.feasible
         bad = sel[~ok]
-        search.stats.dead_ends += int(bad.numel())
+        for book, n_run, n_bad in zip(books, _tally(books, owner, sel), _tally(books, owner, bad)):
+            book.nodes_tested += n_run
+            book.dead_ends += n_bad
         for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
                                (CAUSE_DYNAMIC, "dynamic")):
-            search.stats.rejections[name] += int((res.cause == cause_id).sum())
+            for book, n in zip(books, _tally(books, owner, sel[res.cause == cause_id])):
+                book.rejections[name] += n
         fail_cause[bad] = res.cause[~ok]
-        for tf, c in zip((t0[bad] + k).tolist(), res.cause[~ok].tolist()):
-            search.stats.rejections_by_frame[tf][c - 1] += 1
+        for r, tf, c_id in zip(bad.tolist(), (t0[bad] + k).tolist(), res.cause[~ok].tolist()):
+            books[int(owner[r])].rejections_by_frame[tf][c_id - 1] += 1
         fail_k[bad] = k
         for r in (~ok).nonzero().squeeze(-1).tolist():
             gi = sel[r].item()
@@ -220,7 +239,7 @@ def run_windows(search: "_Search", cand: list, c: Candidates) -> WindowOutcome:
             buf[sel] = full
             frames[key].append(buf)
         if any_roll:                 # a rolling finger's guiding hand point is where the test put it this frame
-            local[sel] = rolled_local(p, t0[sel] + k, res.q, guides, search.ns)
+            local[sel] = rolled_local(p, t0[sel] + k, res.q, guides, ns)
         gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
         gl[sel] = act_k
         g_frames["guiding"].append(gl)

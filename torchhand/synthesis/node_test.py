@@ -38,8 +38,11 @@ and do not survive the mesh's exact normals in the final check.
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 
+from torchhand.kernels._rows import at_least_two
 from torchhand.kernels.friction_cone import solve_friction_cone
 from torchhand.kernels.penetration import capsule_interpenetration
 from torchhand.kernels.status import SolverStatus
@@ -91,6 +94,13 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
     on the object faster than ``settings.slide_speed`` is sliding: its force must lie on the cone's boundary ray
     opposite the motion (the final check of the pipeline applies the same rule).
     """
+    if t.shape[0] == 1:     # a batch of one would take other code paths than the same row among others
+        two = torch.zeros(2, dtype=torch.long, device=t.device)
+        guides = Guides(**{f.name: None if getattr(guides, f.name) is None else getattr(guides, f.name)[two]
+                           for f in dataclasses.fields(guides)})
+        res = run_node_test(problem, t[two], q_prev[two], first[two], guides, None if weights is None else
+                            weights[two], settings, dynamics, None if prev_mask is None else prev_mask[two])
+        return FrameResult(**{f.name: getattr(res, f.name)[:1] for f in dataclasses.fields(res)})
     kin = [_hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings) for h in range(problem.H)]
     # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
     f64 = torch.float64
@@ -294,7 +304,7 @@ def _dynamic_test(problem: SynthesisProblem, t: torch.Tensor, c_point, c_normal,
     if not dynamics:
         run = torch.zeros_like(run)
     # only the candidates that passed the kinematic test are solved (a host sync; rows are gathered)
-    rows = run.nonzero().squeeze(-1)
+    rows = at_least_two(run.nonzero().squeeze(-1))
     forces = torch.zeros(N, K + E, 3, dtype=f64, device=device)
     dyn_ok = torch.zeros(N, dtype=torch.bool, device=device)
     if rows.numel():
@@ -324,7 +334,7 @@ def _resume_undecided(res, args: tuple, opts: dict, s: NodeTestSettings, weight:
     if s.cone_retry_iters is None:
         return status, residual, forces
     undecided = ((status == int(SolverStatus.MAX_ITERATIONS)) & (residual > s.balance_tol * weight)).nonzero()
-    undecided = undecided.squeeze(-1)
+    undecided = at_least_two(undecided.squeeze(-1))
     if not undecided.numel():
         return status, residual, forces
     sub = {k: v[undecided] for k, v in opts.items()}

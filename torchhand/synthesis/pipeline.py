@@ -44,7 +44,7 @@ from .reconstruct import ContactTrack, reconstruct_motion
 from .search import SearchSettings, SearchStats, Solution, search
 from ._diversity import diversity  # noqa: F401  (re-exported: the diversity of a result)
 
-__all__ = ["FinalSolution", "SynthesisResult", "synthesize", "finalize_solution"]
+__all__ = ["FinalSolution", "SynthesisResult", "synthesize", "synthesize_seeds", "finalize_solution"]
 
 
 @dataclass(frozen=True)
@@ -310,44 +310,105 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
     _check_arguments(solutions=solutions, trees=trees, candidates=candidates, max_nodes=max_nodes,
                      stall_nodes=stall_nodes, time_budget=time_budget, max_joint_speed=max_joint_speed, epsilon=epsilon)
     t_start = time.perf_counter()
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
-    gen = torch.Generator().manual_seed(int(seed))
+    scene, fits = _scene_for(scene, mount_fit, _reporter(progress, t_start))
+    run = _start(scene, fits, int(seed), t_start, _Options(
+        solutions=solutions, max_nodes=max_nodes, time_budget=time_budget, epsilon=epsilon, strategy=strategy,
+        device=device, dtype=dtype, trees=trees, candidates=candidates, reconstruct=reconstruct,
+        max_joint_speed=max_joint_speed, keep_unsmoothed=keep_unsmoothed, min_difference=min_difference,
+        node_settings=node_settings, stall_nodes=stall_nodes), progress, on_solution)
+    partial = []
+    _, stats = search(run.problem, run.init, run.result.settings, node_settings=node_settings, seed=int(seed),
+                      progress=run.on_round, accept=run.accept, partial=partial)
+    return _finish(run, stats, partial[0] if partial else None)
 
+
+@dataclass(frozen=True)
+class _Options:
+    """The settings of :func:`synthesize` that every seed of a run shares."""
+
+    solutions: int
+    max_nodes: int | None
+    time_budget: float | None
+    epsilon: float
+    strategy: str
+    device: object
+    dtype: torch.dtype
+    trees: int
+    candidates: int
+    reconstruct: bool
+    max_joint_speed: float
+    keep_unsmoothed: bool
+    min_difference: float
+    node_settings: NodeTestSettings
+    stall_nodes: int | None
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One seed's synthesis between its preparation and its end: the problem, the pruned samples, the growing
+    result, the search's callbacks and the counters they fill."""
+
+    problem: SynthesisProblem
+    init: object
+    result: SynthesisResult
+    accept: object
+    on_round: object
+    excluded: dict
+    t_final: list
+    t_start: float
+    t_prep: float
+
+
+def _reporter(progress, t_start: float):
     def report(stage, **info):
         if progress is not None:
             progress(stage, dict(info, elapsed=time.perf_counter() - t_start))
+    return report
 
+
+def _scene_for(scene, mount_fit: bool, report):
+    """The scene loaded (a name or directory) and its robot hands mounted (``mount_fit``); with the fits."""
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
     fits = ()
     if mount_fit and any(t.model != "default" and t.mount is None for t in scene.hands):
         report("mount")
         scene, fits = fit_mounts(scene)
+    return scene, fits
+
+
+def _start(scene: Scene, fits: tuple, seed: int, t_start: float, o: _Options, progress, on_solution,
+           share: SynthesisProblem | None = None) -> _Run:
+    """Prepare one seed's search: its problem (``share``: another seed's problem of the scene, whose SDF and
+    models it reuses), its pruned patch samples, and the callbacks that finish each path it finds."""
+    report = _reporter(progress, t_start)
+    gen = torch.Generator().manual_seed(seed)
     report("prepare")
-    problem = build_problem(scene, gen, device=device, dtype=dtype)
+    problem = build_problem(scene, gen, device=o.device, dtype=o.dtype, share=share)
     report("prune")
-    init = prune_patches(problem, gen, settings=node_settings)
+    init = prune_patches(problem, gen, settings=o.node_settings)
     t_prep = time.perf_counter() - t_start
-    settings = SearchSettings(epsilon=epsilon, trees=trees, candidates=candidates, strategy=strategy,
-                              solutions=solutions, max_nodes=max_nodes, stall_nodes=stall_nodes,
-                              time_budget=None if time_budget is None else max(0.0, time_budget - t_prep))
+    settings = SearchSettings(epsilon=o.epsilon, trees=o.trees, candidates=o.candidates, strategy=o.strategy,
+                              solutions=o.solutions, max_nodes=o.max_nodes, stall_nodes=o.stall_nodes,
+                              time_budget=None if o.time_budget is None else max(0.0, o.time_budget - t_prep))
     result = SynthesisResult(problem=problem, scene=scene, finals=[], stats=SearchStats(), settings=settings,
-                             node_settings=node_settings, seed=int(seed), max_joint_speed=float(max_joint_speed),
-                             keep_unsmoothed=bool(keep_unsmoothed or not reconstruct), complete=False,
+                             node_settings=o.node_settings, seed=seed, max_joint_speed=float(o.max_joint_speed),
+                             keep_unsmoothed=bool(o.keep_unsmoothed or not o.reconstruct), complete=False,
                              mount_fits=fits)
     excluded = {"failed_check": 0, "unsmoothed": 0, "duplicate": 0}
     t_final = [0.0]
-
     searched = []                           # the searched poses of the accepted paths
 
     def accept(path: Solution) -> bool:
         t0 = time.perf_counter()
-        if _duplicate(path.q, searched, min_difference):
+        if _duplicate(path.q, searched, o.min_difference):
             excluded["duplicate"] += 1      # as searched already: no need to reconstruct it
             return False
-        report("reconstruct", solution=len(result.finals))
-        fin, reason = finalize_solution(problem, path, len(result.finals), ns=node_settings, reconstruct=reconstruct,
-                                        joint_speed=max_joint_speed, keep_unsmoothed=keep_unsmoothed)
-        if fin is not None and _duplicate(fin.q, result.finals, min_difference):
+        report("reconstruct", solution=len(result.finals), seed=seed)
+        fin, reason = finalize_solution(problem, path, len(result.finals), ns=o.node_settings,
+                                        reconstruct=o.reconstruct, joint_speed=o.max_joint_speed,
+                                        keep_unsmoothed=o.keep_unsmoothed)
+        if fin is not None and _duplicate(fin.q, result.finals, o.min_difference):
             fin, reason = None, "duplicate"
         t_final[0] += time.perf_counter() - t0
         if fin is None:
@@ -360,17 +421,63 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
         return True
 
     def on_round(s):
-        report("search", nodes_tested=s.stats.nodes_tested, max_nodes=max_nodes, solutions=len(s.solutions),
-               dead_ends=s.stats.dead_ends)
+        report("search", nodes_tested=s.stats.nodes_tested, max_nodes=o.max_nodes, solutions=len(s.solutions),
+               dead_ends=s.stats.dead_ends, seed=seed)
 
-    partial = []
-    _, stats = search(problem, init, settings, node_settings=node_settings, seed=int(seed), progress=on_round,
-                      accept=accept, partial=partial)
-    result.partial = partial[0] if partial and not result.finals else None
-    t_total = time.perf_counter() - t_start
+    return _Run(problem=problem, init=init, result=result, accept=accept, on_round=on_round, excluded=excluded,
+                t_final=t_final, t_start=t_start, t_prep=t_prep)
+
+
+def _finish(run: _Run, stats: SearchStats, partial: Solution | None) -> SynthesisResult:
+    """The seed's result once its search has ended: counters, exclusions, timings, the partial path."""
+    result = run.result
+    result.partial = partial if not result.finals else None
+    t_total = time.perf_counter() - run.t_start
     result.stats = stats
-    result.excluded = Exclusions(**excluded)
-    result.timings = {"prepare_s": t_prep, "search_s": t_total - t_prep - t_final[0], "finalize_s": t_final[0],
-                      "total_s": t_total}
+    result.excluded = Exclusions(**run.excluded)
+    result.timings = {"prepare_s": run.t_prep, "search_s": t_total - run.t_prep - run.t_final[0],
+                      "finalize_s": run.t_final[0], "total_s": t_total}
     result.complete = True
     return result
+
+
+def synthesize_seeds(scene, seeds, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MAX_NODES,
+                     time_budget: float | None = None, epsilon: float = 10.0, strategy: str = "mixed",
+                     device="cpu", dtype=torch.float32, trees: int = 16, candidates: int = 16,
+                     reconstruct: bool = True, max_joint_speed: float = 8.0, keep_unsmoothed: bool = False,
+                     min_difference: float = math.radians(2.0),
+                     node_settings: NodeTestSettings = NodeTestSettings(), progress=None,
+                     on_solution=None, mount_fit: bool = True, stall_nodes: int | None = None,
+                     multi_stats=None) -> list[SynthesisResult]:
+    """:func:`synthesize` for every seed of ``seeds`` in one batched run: the scene is prepared once (its SDF and
+    models shared), and the searches advance together, their candidates tested in one node-test call per frame
+    (:func:`.multi.search_many`). Each seed's result is the one :func:`synthesize` gives it alone (the same
+    solutions, byte for byte, with a node budget); its timings are the batch's (``timings["batched"]``: the number
+    of seeds).
+
+    progress: callable(stage, info) as in :func:`synthesize`, ``info["seed"]`` naming the seed; on_solution:
+    callable(result, index) as each seed's solution is accepted; multi_stats: a :class:`.multi.MultiStats` to
+    fill."""
+    from .multi import SearchTask, search_many
+
+    seeds = [int(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise InputValueError(f"seeds: expected distinct integers, got {seeds!r}")
+    _check_arguments(solutions=solutions, trees=trees, candidates=candidates, max_nodes=max_nodes,
+                     stall_nodes=stall_nodes, time_budget=time_budget, max_joint_speed=max_joint_speed, epsilon=epsilon)
+    t_start = time.perf_counter()
+    scene, fits = _scene_for(scene, mount_fit, _reporter(progress, t_start))
+    o = _Options(solutions=solutions, max_nodes=max_nodes, time_budget=time_budget, epsilon=epsilon,
+                 strategy=strategy, device=device, dtype=dtype, trees=trees, candidates=candidates,
+                 reconstruct=reconstruct, max_joint_speed=max_joint_speed, keep_unsmoothed=keep_unsmoothed,
+                 min_difference=min_difference, node_settings=node_settings, stall_nodes=stall_nodes)
+    runs: list[_Run] = []
+    for seed in seeds:
+        runs.append(_start(scene, fits, seed, t_start, o, progress, on_solution,
+                           share=runs[0].problem if runs else None))
+    outcomes = search_many([SearchTask(r.problem, r.init, r.result.settings, node_settings, seed, r.on_round,
+                                       r.accept) for r, seed in zip(runs, seeds)], stats=multi_stats)
+    results = [_finish(r, out.stats, out.partial) for r, out in zip(runs, outcomes)]
+    for res in results:
+        res.timings["batched"] = len(seeds)
+    return results

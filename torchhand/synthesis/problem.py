@@ -18,6 +18,7 @@ contact normals point into the object; wrench = (force, torque about the centre 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -213,36 +214,50 @@ def _thin_env(env: EnvContacts, most: int) -> EnvContacts:
 
 def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dtype=torch.float32,
                   voxel_size: float = 0.0015, surface_samples: int = 3000, max_env_contacts: int = 8,
-                  progress: bool = False) -> SynthesisProblem:
-    """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU)."""
+                  progress: bool = False, share: SynthesisProblem | None = None) -> SynthesisProblem:
+    """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU): the
+    surface samples and the finger workspaces (so the contact patches), nothing else.
+
+    share: a problem built from the same scene with the same device, dtype and settings (another seed's): its
+    hands, poses, wrenches, SDF, table contacts and mesh are reused (the same objects, so the searches of both
+    can be tested in one node-test call, :mod:`.multi`) and only the seed's samples and patches are drawn. The
+    result is the same as without it."""
+    pose64 = scene.object_pose.double()
+    pts, nrm = sample_surface(scene.object.mesh, surface_samples, generator, dtype=torch.float64)
+    patch = _patches(scene, pose64, pts, generator).to(device)
+    if share is not None:
+        return dataclasses.replace(share, surface=pts.to(device, dtype), surface_normal=nrm.to(device, dtype),
+                                   patch=patch)
     hands = tuple(track_hand(track).to(device, dtype) for track in scene.hands)
     root = torch.stack([track.wrist_pose for track in scene.hands]).to(device, dtype)
-    pose64 = scene.object_pose.double()
     obj = scene.object
     com64, wrench64 = required_wrench(pose64, torch.tensor(np.array(obj.com), dtype=torch.float64), obj.mass,
                                       torch.tensor(np.array(obj.inertia), dtype=torch.float64), scene.gravity.double(),
                                       scene.fps, external=scene.external_wrench)
     sdf = SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(device, dtype)
-    pts, nrm = sample_surface(obj.mesh, surface_samples, generator, dtype=torch.float64)
-    # points in the wrist frame of every hand and frame: (H, T, S, 3)
-    world = torch.einsum("tij,sj->tsi", pose64[:, :3, :3], pts) + pose64[:, None, :3, 3]
-    patches = []
-    for h, track in enumerate(scene.hands):
-        inv = rigid_inverse(track.wrist_pose.double())
-        local = torch.einsum("tij,tsj->tsi", inv[:, :3, :3], world) + inv[:, None, :3, 3]
-        hand64 = track_hand(track)
-        codes = finger_workspace(hand64, generator)
-        patches.append(torch.stack([_in_workspace(local, c, 0.006) for c in codes]))   # (F, T, S)
     env = _thin_env(environment_contacts(scene), max_env_contacts)
     return SynthesisProblem(
         hands=hands, sides=tuple(t.side for t in scene.hands), root=root,
         object_pose=pose64.to(device, dtype), object_inv=rigid_inverse(pose64).to(device, dtype),
         com=com64.to(device, dtype), wrench=wrench64.to(device, dtype), sdf=sdf,
-        surface=pts.to(device, dtype), surface_normal=nrm.to(device, dtype),
-        patch=torch.stack(patches).to(device),
+        surface=pts.to(device, dtype), surface_normal=nrm.to(device, dtype), patch=patch,
         env=EnvContacts(env.points.to(device, dtype), env.mask.to(device), env.sliding_velocity.to(device, dtype),
                         env.support_index.to(device), env.normal.to(device, dtype)),
         env_friction=float(scene.environment.friction), friction=float(scene.friction), mass=float(obj.mass),
         weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps),
         table_height=float(scene.environment.table_height) if scene.environment.table and scene.environment.plain
         else None, mesh=obj.mesh, ground=None if scene.environment.plain else scene.environment.ground())
+
+
+def _patches(scene: Scene, pose64: torch.Tensor, pts: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """The contact patches (H, F, T, S) bool of the surface samples ``pts`` (S, 3) object frame, float64, under the
+    object poses ``pose64`` (T, 4, 4): each hand's finger workspaces drawn from ``generator``."""
+    # points in the wrist frame of every hand and frame: (H, T, S, 3)
+    world = torch.einsum("tij,sj->tsi", pose64[:, :3, :3], pts) + pose64[:, None, :3, 3]
+    patches = []
+    for track in scene.hands:
+        inv = rigid_inverse(track.wrist_pose.double())
+        local = torch.einsum("tij,tsj->tsi", inv[:, :3, :3], world) + inv[:, None, :3, 3]
+        codes = finger_workspace(track_hand(track), generator)
+        patches.append(torch.stack([_in_workspace(local, c, 0.006) for c in codes]))   # (F, T, S)
+    return torch.stack(patches)

@@ -338,6 +338,19 @@ class _Search:
         """Grow the trees until ``solutions`` paths are accepted or a budget is spent (``max_nodes`` node tests,
         checked after every round, or the ``time_budget`` cap). ``accept(solution) -> bool`` is called on every
         new full path as it is found (default: accept all); only accepted paths count and are returned."""
+        rounds = self.rounds(progress, accept)
+        try:
+            jobs = next(rounds)
+            while True:
+                jobs = rounds.send(self._expand(jobs))
+        except StopIteration as done:
+            return done.value
+
+    def rounds(self, progress=None, accept=None):
+        """The search of :meth:`run` as a generator of rounds: it yields each round's jobs (a list of (tree, node,
+        plans, w)), is sent their :class:`~._search_expand.Expansion` list, and returns the accepted solutions.
+        Whoever runs the expansions (alone: :meth:`_expand`; many searches: :mod:`.multi`) gives the same run, as
+        long as every candidate's node tests are those it would get alone."""
         s = self.s
         self.accept = accept
         start = time.perf_counter()
@@ -370,16 +383,8 @@ class _Search:
                 jobs.append((tree, node, self._informed(tree, node, w), w))
             if not jobs:
                 continue
-            results = self._expand(jobs)
-            for (tree, node, plans, w), res in zip(jobs, results):
-                node.expansions += 1
-                if res.feasible:
-                    order = torch.randperm(len(res.feasible), generator=tree.gen).tolist()
-                    feas = [res.feasible[o] for o in order]
-                    self._push(tree, node, feas[0])
-                    node.pending.extend(feas[1:])
-                else:
-                    node.fail, node.template = res.fail, res.template
+            results = yield jobs
+            self._apply(jobs, results)
             self.stats.time_s = time.perf_counter() - start
             if progress is not None:
                 progress(self)
@@ -389,6 +394,19 @@ class _Search:
         self.stats.time_s = time.perf_counter() - start
         self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
         return [sol for sol in self.accepted]
+
+    def _apply(self, jobs, results) -> None:
+        """A round's expansions: the first feasible child in random order is pushed, the others kept pending; a
+        failed expansion remembers its failure for informed backtracking."""
+        for (tree, node, plans, w), res in zip(jobs, results):
+            node.expansions += 1
+            if res.feasible:
+                order = torch.randperm(len(res.feasible), generator=tree.gen).tolist()
+                feas = [res.feasible[o] for o in order]
+                self._push(tree, node, feas[0])
+                node.pending.extend(feas[1:])
+            else:
+                node.fail, node.template = res.fail, res.template
 
     def _frontier(self, tree: _Tree):
         """The node this tree expands next, after backtracking and consuming pending siblings; None if it
