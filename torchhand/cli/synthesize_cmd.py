@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="wall-clock cap for everything, seconds (default: none); a run stopped by it depends on the "
                         "machine's speed and load")
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same run (default 0)")
+    p.add_argument("--seeds", default=None, metavar="A-B|A,B,...",
+                   help="run these seeds as one batch (e.g. 0-7 or 0,3,5): one result per seed in OUT/seed_S/, each "
+                        "the one --seed S gives alone, byte for byte with a node budget; their node tests share "
+                        "batches (docs/synthesis.md, 'Many seeds at once')")
     p.add_argument("--epsilon", type=float, default=10.0,
                    help="expected number of search nodes per path; windows are T/epsilon frames (default 10)")
     p.add_argument("--strategy", default="mixed", choices=list(STRATEGIES),
@@ -136,6 +140,8 @@ def _frames(text: str, T: int) -> tuple[int, int]:
 def _check_args(args) -> None:
     if args.device == "cuda" and not torch.cuda.is_available():
         raise InputValueError("--device cuda: no CUDA device is available; use --device cpu")
+    if args.seeds is not None and args.seed != 0:
+        raise InputValueError("--seeds: give either --seed S or --seeds A-B, not both")
     for name, value, low in (("--solutions", args.solutions, 1), ("--trees", args.trees, 1),
                              ("--candidates", args.candidates, 1), ("--max-nodes", args.max_nodes, 0)):
         if value < low:
@@ -204,70 +210,144 @@ def _prepare(scene, args):
                            object_rest=None if args.object_as_captured else ObjectRest())
 
 
-def run(args) -> int:
+def parse_seeds(text: str) -> list[int]:
+    """``A-B`` (inclusive) or ``A,B,...`` (or a mix: ``0-3,9``) -> distinct seeds in order (InputValueError)."""
+    seeds = []
+    try:
+        for part in text.split(","):
+            lo, sep, hi = part.strip().partition("-")
+            seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    except ValueError:
+        raise InputValueError(f"--seeds: expected A-B or A,B,... with integers >= 0, got {text!r}") from None
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise InputValueError(f"--seeds: expected distinct integers >= 0 (A-B with A <= B, or A,B,...), got {text!r}")
+    return seeds
+
+
+def _scene(args):
+    """The scene as the options make it: hands, object swap and offset, smoothing, frames, capture preparation.
+    Returns (scene, prepared, swap record, offset record)."""
     from ..scene import load_scene
+
+    scene = load_scene(args.scene)
+    scene = with_hands(scene, args.hand)
+    scene, swap = _swap(scene, args)
+    scene, offset = _offset(scene, args.object_offset)
+    scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
+    if args.frames:
+        scene = scene.with_frames(*_frames(args.frames, scene.T))
+    prepared = _prepare(scene, args)
+    return prepared.scene, prepared, swap, offset
+
+
+def _writers(args, seeds) -> dict:
+    """One result writer per seed (None: the single run's ``--out``), each claimed before any work."""
+    from pathlib import Path
+
+    from ..synthesis.output import ResultWriter
+
+    if seeds is None:
+        return {None: ResultWriter(args.out, overwrite=args.overwrite)}
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputValueError(f"--out {out}: exists and is not a directory")
+    writers = {}
+    try:
+        for seed in seeds:
+            writers[seed] = ResultWriter(out / f"seed_{seed}", overwrite=args.overwrite)
+    except BaseException:
+        for w in writers.values():
+            w.abandon()
+        raise
+    return writers
+
+
+def run(args) -> int:
     from ..fill.prepare import is_capture
-    from ..fill.captured import result_reference
     from ..synthesis.node_test import NodeTestSettings
-    from ..synthesis.output import ResultWriter, stats_dict
-    from ..synthesis.pipeline import synthesize
+    from ..synthesis.pipeline import synthesize, synthesize_seeds
 
     _check_args(args)
+    seeds = None if args.seeds is None else parse_seeds(args.seeds)
     threads = apply_threads(args.threads)
-    writer = ResultWriter(args.out, overwrite=args.overwrite)     # before any work: nothing is lost later
+    writers = _writers(args, seeds)     # before any work: nothing is lost later
     try:
-        scene = load_scene(args.scene)
-        scene = with_hands(scene, args.hand)
-        scene, swap = _swap(scene, args)
-        scene, offset = _offset(scene, args.object_offset)
-        scene = scene.smoothed(args.smooth)   # the whole clip, before any frame range: no edge effects inside it
-        if args.frames:
-            scene = scene.with_frames(*_frames(args.frames, scene.T))
-        prepared = _prepare(scene, args)
-        scene = prepared.scene
+        scene, prepared, swap, offset = _scene(args)
     except BaseException:
-        writer.abandon()
+        for w in writers.values():
+            w.abandon()
         raise
     if prepared.phases or args.slide_speed is not None or args.wrist_tolerance is not None:
         print(f"{scene.name}: {prepared.describe()}", file=sys.stderr)
     max_nodes = args.max_nodes or None
     bar = Progress("synthesize", disable=args.no_progress)
+    progress = _progress(bar, args, max_nodes, seeds)
+    started = set()
+
+    def on_solution(result, index):
+        key = None if seeds is None else result.seed
+        if key not in started:
+            writers[key].start(result.problem, result.scene)
+            started.add(key)
+        writers[key].add(result, index)
+
+    options = dict(solutions=args.solutions, max_nodes=max_nodes, time_budget=args.time_budget,
+                   epsilon=args.epsilon, strategy=args.strategy, device=args.device, dtype=getattr(torch, args.dtype),
+                   trees=args.trees, candidates=args.candidates, reconstruct=not args.no_reconstruct,
+                   max_joint_speed=args.max_joint_speed, keep_unsmoothed=args.keep_unsmoothed, progress=progress,
+                   on_solution=on_solution, mount_fit=not args.no_mount_fit,
+                   node_settings=NodeTestSettings(slide_speed=prepared.slide_speed,
+                                                  table_slide_speed=prepared.slide_speed if is_capture(scene)
+                                                  else 1e-3))
+    try:
+        if seeds is None:
+            results = {None: synthesize(scene, seed=args.seed, **options)}
+        else:
+            results = dict(zip(seeds, synthesize_seeds(scene, seeds, **options)))
+    except KeyboardInterrupt:
+        bar.close()
+        for w in writers.values():
+            where = w.interrupted(None, scene.name)
+            print(f"torchhand: interrupted; {w.written} solution(s) checkpointed in {where} (stats.json says "
+                  f"\"complete\": false)", file=sys.stderr)
+        return 130
+    bar.close()
+    found = [_write(writers[key], result, key in started, prepared, swap, offset, threads, args, max_nodes)
+             for key, result in results.items()]
+    if seeds is not None:
+        empty = [s for s, n in zip(seeds, found) if not n]
+        print(f"{scene.name}: {len(seeds)} seeds in one batch, {sum(found)} solution(s); "
+              + (f"none for seed(s) {', '.join(map(str, empty))}" if empty else "every seed wrote a result"))
+    return 0 if all(found) else 1
+
+
+def _progress(bar, args, max_nodes, seeds):
+    """The progress callback of one run or of a batch of seeds (the batch's node tests summed)."""
+    done = {}
 
     def progress(stage, info):
         if stage == "search":
-            frac = info["nodes_tested"] / max_nodes if max_nodes else None
-            bar.update("search", f"{info['nodes_tested']}{f'/{max_nodes}' if max_nodes else ''} node tests, "
-                       f"{info['solutions']}/{args.solutions} solutions, {info['elapsed']:.0f} s", frac)
+            done[info.get("seed")] = (info["nodes_tested"], info["solutions"])
+            nodes, sols = sum(v[0] for v in done.values()), sum(v[1] for v in done.values())
+            budget = max_nodes * (len(seeds) if seeds else 1) if max_nodes else None
+            want = args.solutions * (len(seeds) if seeds else 1)
+            bar.update("search", f"{nodes}{f'/{budget}' if budget else ''} node tests, {sols}/{want} solutions, "
+                       f"{info['elapsed']:.0f} s", nodes / budget if budget else None)
         elif stage == "reconstruct":
-            bar.update("reconstruct", f"path {info['solution'] + 1}, {info['elapsed']:.0f} s")
+            who = f"seed {info['seed']} " if seeds else ""
+            bar.update("reconstruct", f"{who}path {info['solution'] + 1}, {info['elapsed']:.0f} s")
         else:
             bar.update(stage, f"{info['elapsed']:.0f} s")
+    return progress
 
-    started = []
 
-    def on_solution(result, index):
-        if not started:
-            writer.start(result.problem, result.scene)
-            started.append(True)
-        writer.add(result, index)
+def _write(writer, result, started: bool, prepared, swap, offset, threads, args, max_nodes) -> int:
+    """Complete one result directory (stats.json with the run's records) and print its summary; returns the
+    number of solutions written."""
+    from ..fill.captured import result_reference
+    from ..synthesis.output import stats_dict
 
-    try:
-        result = synthesize(scene, solutions=args.solutions, max_nodes=max_nodes, time_budget=args.time_budget,
-                            seed=args.seed, epsilon=args.epsilon, strategy=args.strategy, device=args.device,
-                            dtype=getattr(torch, args.dtype), trees=args.trees, candidates=args.candidates,
-                            reconstruct=not args.no_reconstruct, max_joint_speed=args.max_joint_speed,
-                            keep_unsmoothed=args.keep_unsmoothed, progress=progress, on_solution=on_solution,
-                            node_settings=NodeTestSettings(slide_speed=prepared.slide_speed,
-                                                           table_slide_speed=prepared.slide_speed if is_capture(scene)
-                                                           else 1e-3),
-                            mount_fit=not args.no_mount_fit)
-    except KeyboardInterrupt:
-        bar.close()
-        where = writer.interrupted(None, scene.name)
-        print(f"torchhand: interrupted; {writer.written} solution(s) checkpointed in {where} (stats.json says "
-              f"\"complete\": false)", file=sys.stderr)
-        return 130
-    bar.close()
+    scene = result.scene
     if not started:
         writer.start(result.problem, result.scene)
     stats = stats_dict(result, threads=threads)
@@ -287,7 +367,8 @@ def run(args) -> int:
     n = len(result.finals)
     ex = result.excluded
     unsmoothed = sum(not f.reconstructed for f in result.finals)
-    print(f"{scene.name}: {n} solution(s) in {result.timings['total_s']:.1f} s; {st.nodes_tested} node tests "
+    who = f" (seed {result.seed})" if args.seeds else ""
+    print(f"{scene.name}{who}: {n} solution(s) in {result.timings['total_s']:.1f} s; {st.nodes_tested} node tests "
           f"({st.nodes_tested / max(result.timings['search_s'], 1e-9):.0f}/s, stopped by {st.stopped_by}), "
           f"{st.dead_ends} dead ends (kinematic {st.rejections['kinematic']}, finger-finger "
           f"{st.rejections['finger_finger']}, dynamic {st.rejections['dynamic']}); {st.paths_found} path(s) found, "
@@ -296,7 +377,7 @@ def run(args) -> int:
     if n == 0:
         _explain_failure(result, args, scene, max_nodes)
     print(f"wrote {out}/scene/, {out}/hand.xml, {out}/stats.json, {n} solution(s) in {out}/solutions/")
-    return 0 if n else 1
+    return n
 
 
 def _say_reference(name: str, reference: dict) -> None:

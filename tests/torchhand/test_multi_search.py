@@ -1,0 +1,170 @@
+"""Many searches in one batch (torchhand.synthesis.multi): each search's run is the one it has alone.
+
+The searches are small (box-turn's first 16 frames, 4 trees of 6 candidates, a node budget) so that the whole file
+runs in a few minutes; the contract is byte-identity, so the comparisons are exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+import torchhand
+from torchhand.cli import main as cli
+from torchhand.synthesis.initial import prune_patches
+from torchhand.synthesis.multi import MultiStats, SearchTask, node_context, search_many
+from torchhand.synthesis.node_test import Guides, run_node_test
+from torchhand.synthesis.problem import build_problem
+from torchhand.synthesis.search import SearchSettings, search
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+
+SETTINGS = SearchSettings(trees=4, candidates=6, solutions=2, max_nodes=900, epsilon=3)
+SOLUTION_FIELDS = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "env_force", "guiding", "guide_obj",
+                   "guide_link", "guide_local")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return torchhand.load_scene("box-turn").with_frames(0, 16)
+
+
+def _prepared(scene, seed, share=None, device="cpu", dtype=torch.float32):
+    gen = torch.Generator().manual_seed(seed)
+    problem = build_problem(scene, gen, share=share, device=device, dtype=dtype)
+    return problem, prune_patches(problem, gen)
+
+
+def _assert_same_run(alone, outcome):
+    sols, stats = alone
+    assert len(sols) == len(outcome.solutions)
+    for a, b in zip(sols, outcome.solutions):
+        for name in SOLUTION_FIELDS:
+            assert torch.equal(getattr(a, name), getattr(b, name)), name
+        assert a.tree == b.tree
+    ours = outcome.stats
+    assert (stats.nodes_tested, stats.dead_ends, stats.rejections, stats.rejections_by_frame, stats.paths_found,
+            stats.restarts, stats.deepest_frame, stats.stopped_by) == \
+        (ours.nodes_tested, ours.dead_ends, ours.rejections, ours.rejections_by_frame, ours.paths_found,
+         ours.restarts, ours.deepest_frame, ours.stopped_by)
+
+
+def _alone_and_together(scene, seeds, device="cpu"):
+    alone = []
+    for seed in seeds:
+        problem, init = _prepared(scene, seed, device=device)
+        alone.append(search(problem, init, SETTINGS, seed=seed))
+    tasks, share = [], None
+    for seed in seeds:
+        problem, init = _prepared(scene, seed, share=share, device=device)
+        share = share or problem
+        tasks.append(SearchTask(problem, init, SETTINGS, seed=seed))
+    stats = MultiStats()
+    return alone, search_many(tasks, stats=stats), stats
+
+
+def test_searches_in_one_batch_run_as_they_do_alone(scene):
+    """Three seeds of one scene share their node-test calls; each finds what it finds alone, bit for bit, with the
+    same counters, and the calls are larger than one search's."""
+    seeds = (3, 4, 5)
+    alone, outcomes, stats = _alone_and_together(scene, seeds)
+    assert sum(len(s) for s, _ in alone) >= 3           # the comparison covers found paths, not only dead ends
+    for a, o in zip(alone, outcomes):
+        _assert_same_run(a, o)
+    assert stats.calls > 0 and sum(stats.batch_sizes) == sum(o.stats.nodes_tested for o in outcomes)
+    assert max(stats.batch_sizes) > SETTINGS.trees * SETTINGS.candidates      # more than one search can make
+
+
+def test_searches_of_different_scenes_are_grouped_not_mixed(scene):
+    """Two clips of different length cannot share a call: each forms its own group, and each still runs as alone."""
+    other = torchhand.load_scene("box-turn").with_frames(4, 16)
+    runs = []
+    tasks = []
+    for sc, seed in ((scene, 3), (other, 4)):
+        problem, init = _prepared(sc, seed)
+        runs.append(search(problem, init, SETTINGS, seed=seed))
+        problem, init = _prepared(sc, seed)
+        tasks.append(SearchTask(problem, init, SETTINGS, seed=seed))
+    assert node_context(tasks[0].problem) != node_context(tasks[1].problem)
+    for a, o in zip(runs, search_many(tasks)):
+        _assert_same_run(a, o)
+
+
+def test_a_shared_problem_is_the_problem_built_alone(scene):
+    """``share=`` reuses the SDF and models of another seed's problem and draws only the seed's samples: every
+    field equals the one built without it, and the node-test context is the shared one."""
+    first, _ = _prepared(scene, 0)
+    gen = torch.Generator().manual_seed(7)
+    shared = build_problem(scene, gen, share=first)
+    alone = build_problem(scene, torch.Generator().manual_seed(7))
+    for f in dataclasses.fields(alone):
+        a, b = getattr(alone, f.name), getattr(shared, f.name)
+        if isinstance(a, torch.Tensor):
+            assert torch.equal(a, b), f.name
+    assert torch.equal(alone.sdf.values, shared.sdf.values)
+    assert node_context(shared) == node_context(first) != node_context(alone)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_candidates_node_test_does_not_depend_on_its_batch(dtype):
+    """The node test of 24 candidates at a box-turn hold frame, whole, in two halves and one by one: every output
+    of every row is bit-identical (a batch of one would take BLAS's matrix-vector path, and a global early stop
+    would make rows iterate as long as the slowest one)."""
+    from bench_synthesis import node_batch
+
+    problem, run = node_batch(24, "cpu", dtype)
+    cells = dict(zip(run.__code__.co_freevars, (c.cell_contents for c in run.__closure__)))
+    t, q_prev, first, guides, warm = (cells[k] for k in ("t", "q_prev", "first", "guides", "warm"))
+    whole = run()
+
+    def rows(idx):
+        g = Guides(**{f.name: None if getattr(guides, f.name) is None else getattr(guides, f.name)[idx]
+                      for f in dataclasses.fields(guides)})
+        return run_node_test(problem, t[idx], q_prev[idx], first[idx], g, prev_mask=warm.c_mask[idx])
+
+    parts = [torch.arange(0, 10), torch.arange(10, 24)] + [torch.tensor([i]) for i in (0, 7, 23)]
+    assert bool(whole.feasible.any())
+    for idx in parts:
+        part = rows(idx)
+        for f in dataclasses.fields(whole):
+            assert torch.equal(getattr(whole, f.name)[idx], getattr(part, f.name)), (f.name, idx.tolist())
+
+
+def test_seeds_option_writes_each_seed_as_alone(tmp_path, capsys):
+    """``torchhand synthesize --seeds 1-2`` writes OUT/seed_1 and OUT/seed_2, each with the solution files that
+    ``--seed S`` writes alone (the result digest over every array)."""
+    from torchhand.io.digest import solutions_digest
+
+    args = ["synthesize", "box-turn", "--frames", "0:16", "--trees", "4", "--candidates", "6", "--epsilon", "3",
+            "--solutions", "2", "--max-nodes", "900", "--no-progress"]
+    assert cli(args + ["--seeds", "1-2", "--out", str(tmp_path / "batch")]) == 0
+    assert cli(args + ["--seed", "2", "--out", str(tmp_path / "alone")]) == 0
+    assert sorted(p.name for p in (tmp_path / "batch").iterdir()) == ["seed_1", "seed_2"]
+    assert len(list((tmp_path / "alone" / "solutions").glob("sol_*.npz"))) >= 1
+    assert solutions_digest(tmp_path / "batch" / "seed_2") == solutions_digest(tmp_path / "alone")
+    assert torchhand.check_result(tmp_path / "batch" / "seed_1").passed
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--seeds", "3-1"], "--seeds"),
+    (["--seeds", "0,0"], "--seeds"),
+    (["--seeds", "a-b"], "--seeds"),
+    (["--seeds", "0-1", "--seed", "4"], "--seeds"),
+])
+def test_bad_seeds_are_one_line_and_exit_2(argv, needle, tmp_path, capsys):
+    rc = cli(["synthesize", "box-turn", "--out", str(tmp_path / "x")] + argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and needle in err[0]
+    assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_searches_in_one_batch_run_as_they_do_alone(scene):
+    """On the GPU the same contract: two seeds together give each seed's alone run on the GPU, bit for bit."""
+    alone, outcomes, _ = _alone_and_together(scene, (3, 4), device="cuda")
+    for a, o in zip(alone, outcomes):
+        _assert_same_run(a, o)
