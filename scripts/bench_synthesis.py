@@ -16,6 +16,12 @@ in the same run (and the paper's), and the independent checks (:mod:`torchhand.c
     python scripts/bench_synthesis.py scenes --max-nodes 60000 --json bench_scenes.json
     python scripts/bench_synthesis.py hands --max-nodes 40000 --json bench_hands.json [--hands shadow leap ...]
 
+``batch``: K seeds of a scene (``--batch-seeds 16``, ``--solutions 3``, ``--max-nodes``) as one batched run
+(``synthesize --seeds``) against the same K runs one at a time, in the same process: the ratio of the times, jobs per
+hour, whether each seed's files are identical to its alone run's, and the checks of every result.
+
+    python scripts/bench_synthesis.py batch --scenes box-turn --batch-seeds 16 --solutions 3 --max-nodes 2000
+
 ``hands``: each robot hand of the shared data (no sidecar; the mount fitted, docs/hand_model.md) on ``cube-turn``
 (``--hand-scenes``), the same columns and checks, with the fitted mount.
 """
@@ -194,9 +200,59 @@ def run_jobs(jobs, max_nodes: int, seed: int, threads: int) -> list[dict]:
     return rows
 
 
+def bench_batch(scene: str = "box-turn", seeds=tuple(range(16)), solutions: int = 3, max_nodes: int = 2000,
+                device: str = "cpu", alone: int | None = None) -> dict:
+    """K seeds of ``scene`` as one batch (:func:`torchhand.synthesis.pipeline.synthesize_seeds`) against the same
+    seeds run one at a time (the first ``alone`` of them; default all), in the same process: wall times, jobs per
+    hour, whether every seed's solution files are identical to its alone run's (the result digest), the checks of
+    every batched result, and the scheduler's batch sizes."""
+    from torchhand import load_scene
+    from torchhand.check import check_result
+    from torchhand.io.digest import solutions_digest
+    from torchhand.synthesis.multi import MultiStats
+    from torchhand.synthesis.pipeline import synthesize, synthesize_seeds
+
+    sc = load_scene(scene)
+    seeds = list(seeds)
+    opts = dict(solutions=solutions, max_nodes=max_nodes, device=device)
+    tmp = tempfile.mkdtemp(prefix="bench-batch-")
+    ms = MultiStats()
+    t0 = time.perf_counter()
+    together = synthesize_seeds(sc, seeds, multi_stats=ms, **opts)
+    batch_s = time.perf_counter() - t0
+    def digest(path, res):
+        return solutions_digest(path) if res.finals else "no solution"
+
+    digests, checks = {}, []
+    for seed, res in zip(seeds, together):
+        out = res.save(os.path.join(tmp, f"batch_{seed}"))
+        digests[seed] = digest(out, res)
+        if res.finals:
+            checks.append(check_result(out).passed)
+    alone_s, same = [], []
+    for seed in seeds[:len(seeds) if alone is None else alone]:
+        t0 = time.perf_counter()
+        res = synthesize(sc, seed=seed, **opts)
+        alone_s.append(time.perf_counter() - t0)
+        same.append(digest(res.save(os.path.join(tmp, f"alone_{seed}")), res) == digests[seed]
+                    and res.stats.nodes_tested == together[seeds.index(seed)].stats.nodes_tested)
+    K = len(seeds)
+    row = {"scene": scene, "device": device, "K": K, "solutions_asked": solutions, "max_nodes": max_nodes,
+           "written": sum(len(r.finals) for r in together), "node_tests": sum(r.stats.nodes_tested for r in together),
+           "batch_s": batch_s, "batch_jobs_per_h": 3600 * K / batch_s, "checks_pass": f"{sum(checks)}/{len(checks)}",
+           "calls": ms.calls, "mean_batch": sum(ms.batch_sizes) / max(ms.calls, 1),
+           "max_batch": max(ms.batch_sizes, default=0)}
+    if alone_s:
+        row.update({"alone_runs": len(alone_s), "alone_sum_s": sum(alone_s),
+                    "alone_jobs_per_h": 3600 * len(alone_s) / sum(alone_s),
+                    "batch_over_alone": batch_s / (sum(alone_s) * K / len(alone_s)),
+                    "identical": f"{sum(same)}/{len(same)}"})
+    return row
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("suite", choices=["nodes", "scenes", "hands", "all"])
+    p.add_argument("suite", choices=["nodes", "scenes", "hands", "batch", "all"])
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--batch", type=int, nargs="+", default=[64, 256, 1024])
@@ -214,6 +270,10 @@ def main(argv=None) -> int:
                         "shadow allegro leap allegro_urdf); names of shared hands or MJCF/URDF paths")
     p.add_argument("--hand-scenes", nargs="+", default=["cube-turn"], help="hands: the scenes (default cube-turn)")
     p.add_argument("--solutions", type=int, default=3, help="hands: solutions asked per run (default 3)")
+    p.add_argument("--batch-seeds", type=int, nargs="+", default=[16],
+                   help="batch: K seeds 0..K-1 of --scenes' first scene in one batch, one row per K (default 16)")
+    p.add_argument("--alone", type=int, default=None,
+                   help="batch: run only the first N seeds alone for the comparison (default: all)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -239,6 +299,12 @@ def main(argv=None) -> int:
         print_table(rows, ["scene", "solutions", "nodes_tested", "nodes_per_s", "stopped_by", "checks_pass",
                            "checks_failed", "worst_penetration_mm", "time_s"])
         out["hands"] = rows
+    if a.suite == "batch":
+        rows = [bench_batch(a.scenes[0], range(k), a.solutions, a.max_nodes, a.device, a.alone)
+                for k in a.batch_seeds]
+        print("\n[many seeds in one batch against the same seeds one at a time]")
+        print_table(rows, list(rows[0].keys()))
+        out["batch"] = rows
     if a.json:
         write_json(a.json, out)
         print(f"wrote {a.json}")

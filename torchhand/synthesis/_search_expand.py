@@ -8,6 +8,7 @@ the per-frame outputs of the node test are collected in :class:`WindowOutcome`; 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -155,11 +156,12 @@ def _tally(books: list, owner: torch.Tensor, rows: torch.Tensor) -> list[int]:
 
 
 def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: torch.Tensor,
-                 on_call=None) -> WindowOutcome:
+                 on_call=None, max_rows: int | None = None) -> WindowOutcome:
     """:func:`run_windows` for candidates of one or many searches that share the problem's node-test fields (the
     same scene prepared once, :mod:`.multi`): the rows are tested together and each frame's counters go to the
     :class:`~.search.SearchStats` in ``books`` that owns the row (``owner`` (N,) long, CPU). A row's outputs do
-    not depend on the other rows of the batch. on_call: optional callable(n) with each node-test call's batch size."""
+    not depend on the other rows of the batch. on_call: optional callable(n) with each node-test call's batch size;
+    max_rows: a frame's rows are tested in calls of at most this many (None: one call)."""
     H, F = p.H, p.F
     device = p.device
     N = int(c.t0.shape[0])
@@ -206,10 +208,8 @@ def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: t
         guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None],
                         roll=roll[sel] & act_k if any_roll else None)
         lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
-        res = run_node_test(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
-                            weights[sel], settings=ns, prev_mask=prev_mask[sel])
-        if on_call is not None:
-            on_call(int(sel.numel()))
+        res = _node_tests(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
+                          weights[sel], ns, prev_mask[sel], max_rows, on_call)
         ok = res.feasible
         bad = sel[~ok]
         for book, n_run, n_bad in zip(books, _tally(books, owner, sel), _tally(books, owner, bad)):
@@ -247,6 +247,26 @@ def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: t
         g_frames["guide_link"].append(link.clone())
         g_frames["guide_local"].append(local.clone())
     return WindowOutcome(alive=alive, frames=frames, g_frames=g_frames, fail_cause=fail_cause, fail_k=fail_k, fail_fingers=fail_fingers)
+
+
+def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max_rows, on_call):
+    """:func:`run_node_test` of the rows, in calls of at most ``max_rows`` rows of near-equal size (every row's
+    answer is its own, so the split changes nothing but the time)."""
+    n = int(t.shape[0])
+    parts = 1 if max_rows is None or n <= max_rows else -(-n // max_rows)
+    results = []
+    for idx in torch.arange(n, device=t.device).tensor_split(parts):
+        g = Guides(**{f.name: None if getattr(guides, f.name) is None else getattr(guides, f.name)[idx]
+                      for f in dataclasses.fields(guides)}) if parts > 1 else guides
+        rows = (lambda x: x[idx]) if parts > 1 else (lambda x: x)
+        results.append(run_node_test(p, rows(t), rows(q_prev), rows(first), g, rows(weights), settings=ns,
+                                     prev_mask=rows(prev_mask)))
+        if on_call is not None:
+            on_call(int(idx.numel()))
+    if parts == 1:
+        return results[0]
+    return type(results[0])(**{f.name: torch.cat([getattr(r, f.name) for r in results])
+                               for f in dataclasses.fields(results[0])})
 
 
 def regroup(jobs, cand: list, o: WindowOutcome) -> list[Expansion]:

@@ -35,7 +35,7 @@ from .problem import SynthesisProblem
 from .search import SearchSettings, SearchStats, Solution, _Search
 from ._search_expand import Candidates, WindowOutcome, candidates, regroup, test_windows
 
-__all__ = ["SearchTask", "SearchOutcome", "MultiStats", "search_many", "node_context"]
+__all__ = ["SearchTask", "SearchOutcome", "MultiStats", "search_many", "node_context", "CPU_MAX_ROWS"]
 
 
 @dataclass(frozen=True)
@@ -85,11 +85,19 @@ def _group_key(run: _Search) -> tuple:
     return node_context(run.p), repr(run.ns), run.s.slide_speed
 
 
-def search_many(tasks, *, stats: MultiStats | None = None, on_round=None) -> list[SearchOutcome]:
+CPU_MAX_ROWS = 256
+"""On a CPU a frame's gathered candidates are tested in calls of at most this many rows: the node test's rate on two
+cores peaks between 64 and 256 candidates and falls beyond (its working set leaves the cache; BENCHMARKS.md). A GPU
+takes them in one call."""
+
+
+def search_many(tasks, *, stats: MultiStats | None = None, on_round=None,
+                max_rows: int | None | str = "auto") -> list[SearchOutcome]:
     """Run every :class:`SearchTask` to its end (see the module docstring); returns their outcomes in order.
 
     stats: a :class:`MultiStats` to fill; on_round: optional callable(MultiStats, running) after every round,
-    ``running`` the number of searches not yet finished."""
+    ``running`` the number of searches not yet finished; max_rows: the largest node-test call ("auto":
+    :data:`CPU_MAX_ROWS` on a CPU, unlimited on a GPU; None: unlimited). No choice changes a result."""
     tasks = list(tasks)
     stats = MultiStats() if stats is None else stats
     runs = [_Search(t.problem, t.init, t.settings, t.node_settings, t.seed) for t in tasks]
@@ -114,7 +122,7 @@ def search_many(tasks, *, stats: MultiStats | None = None, on_round=None) -> lis
             groups.setdefault(_group_key(runs[i]), []).append(i)
         results = {}
         for members in groups.values():
-            results.update(_expand_group(runs, members, waiting, stats))
+            results.update(_expand_group(runs, members, waiting, stats, max_rows))
         stats.rounds += 1
         for i in sorted(results):
             advance(i, results[i])
@@ -123,7 +131,7 @@ def search_many(tasks, *, stats: MultiStats | None = None, on_round=None) -> lis
     return outcomes
 
 
-def _expand_group(runs: list, members: list, waiting: dict, stats: MultiStats) -> dict:
+def _expand_group(runs: list, members: list, waiting: dict, stats: MultiStats, max_rows) -> dict:
     """The round's jobs of the searches ``members`` (one node-test context) expanded in one batch; per search
     its list of expansions."""
     parts = [(i, *candidates(runs[i], waiting[i])) for i in members]
@@ -132,9 +140,11 @@ def _expand_group(runs: list, members: list, waiting: dict, stats: MultiStats) -
                            for f in dataclasses.fields(Candidates)})
     owner = torch.repeat_interleave(torch.arange(len(parts)), torch.tensor(sizes))
     lead = runs[members[0]]
+    if max_rows == "auto":
+        max_rows = CPU_MAX_ROWS if lead.p.device.type == "cpu" else None
     calls = []
     outcome = test_windows(lead.p, lead.ns, lead.s.slide_speed, joined, [runs[i].stats for i in members], owner,
-                           on_call=calls.append)
+                           on_call=calls.append, max_rows=max_rows)
     stats.calls += len(calls)
     stats.batch_sizes.extend(calls)
     out, start = {}, 0
