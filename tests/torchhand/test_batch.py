@@ -437,3 +437,54 @@ def test_kill_9_of_one_worker_is_a_recorded_failure_and_a_rerun_finishes_it(tmp_
     assert cli(["batch", str(manifest), "--out", str(out), "--workers", "2", "--no-progress"]) == 0
     _assert_exactly_once(out, ids)
     assert [e["attempt"] for e in _events(out) if e["event"] == "finish" and e["job"] == victim["job"]] == [2]
+
+
+# ------------------------------------------------------------------------------------ seeds in one worker process
+
+SIX = SMALL + '[[jobs]]\nscenes = ["box-turn"]\nseeds = [0, 1, 2, 3]\n\n[[jobs]]\nscenes = ["bottle-turn"]\nseeds = [5]\n' \
+    + '\n[[jobs]]\nscenes = ["box-turn"]\nseeds = [7]\ntrees = 3\n'
+
+
+def test_seeds_grouped_in_one_process_give_each_jobs_own_files(tmp_path):
+    """``--group 0`` runs box-turn's four seeds as one batched process (one scheduler), the other jobs alone: every
+    job is finished once, in its own directory with its check, and its solution arrays are those of the same job run
+    one per process."""
+    manifest = _write(tmp_path / "batch.toml", SIX)
+    grouped, alone = tmp_path / "grouped", tmp_path / "alone"
+    assert cli(["batch", str(manifest), "--out", str(grouped), "--workers", "1", "--group", "0",
+                "--no-progress"]) == 0
+    assert cli(["batch", str(manifest), "--out", str(alone), "--workers", "2", "--no-progress"]) == 0
+    ids = set(load_manifest(manifest).ids)
+    assert len(ids) == 6
+    _assert_exactly_once(grouped, ids)
+    starts = [e for e in _events(grouped) if e["event"] == "start"]
+    assert sorted(e.get("group", 1) for e in starts) == [1, 1, 4, 4, 4, 4]
+    assert len({e["pid"] for e in starts if e.get("group")}) == 1
+    assert json.loads((grouped / "batch.json").read_text())["runs"][-1]["group"] == 0
+    for d in _job_dirs(grouped):
+        assert (d / "check.json").is_file()
+        a, b = _arrays(d), _arrays(alone / "jobs" / d.name)
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x), d.name
+    assert cli(["batch", str(manifest), "--out", str(grouped), "--group", "0", "--no-progress"]) == 0
+    assert len([e for e in _events(grouped) if e["event"] == "start"]) == 6          # a rerun runs nothing
+
+
+def test_grouping_keeps_other_jobs_alone_and_splits_over_workers():
+    """Only synthesis jobs whose command lines differ in ``--seed`` alone share a process; group 0 splits them
+    evenly over the workers."""
+    import tempfile
+
+    from torchhand.batch.runner import plan_run, units
+
+    with tempfile.TemporaryDirectory() as d:
+        jobs = load_manifest(_write(Path(d) / "b.toml", SIX)).jobs
+    todo = [(j, 1) for j in jobs]
+    sizes = lambda plan: sorted(len(u) for u in units(todo, plan))
+    assert sizes(plan_run(workers=1, threads=1, cpus=2)) == [1] * 6
+    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=0)) == [1, 1, 4]
+    assert sizes(plan_run(workers=2, threads=1, cpus=2, group=0)) == [1, 1, 2, 2]
+    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=3)) == [1, 1, 1, 3]
+    with pytest.raises(TorchhandError, match="--group"):
+        plan_run(workers=1, threads=1, cpus=2, group=-1)

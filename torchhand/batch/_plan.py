@@ -26,6 +26,9 @@ class RunPlan:
     workers: jobs at a time; threads: torch threads per job; cpus: CPUs usable here
     device: "cpu" or "cuda"; backend: "local" or "ray" (ray_address: "local" for ``--ray auto``, else the address)
     gpus: CUDA devices given to local workers round-robin (``CUDA_VISIBLE_DEVICES``), empty for the CPU
+    group: synthesis jobs that differ only by seed run this many to one worker process, their searches batched
+        (:func:`torchhand.synthesis.pipeline.synthesize_seeds`); 0: all of them, split evenly over the workers (one
+        process per device); 1: one job per process
     """
 
     workers: int
@@ -35,15 +38,25 @@ class RunPlan:
     backend: str = "local"
     ray_address: str | None = None
     gpus: tuple[str, ...] = ()
+    group: int = 1
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
 def plan_run(*, workers: int | None = None, threads: int | None = None, device: str = "cpu",
-             ray: str | None = None, cpus: int | None = None, gpus: tuple[str, ...] = ()) -> RunPlan:
+             ray: str | None = None, cpus: int | None = None, gpus: tuple[str, ...] = (),
+             group: int | None = None) -> RunPlan:
     """The run's plan (module docstring). ``ray``: None (local pool), ``"auto"`` (a local Ray instance) or a
-    cluster address, where ``workers`` caps the jobs in flight (default: what the cluster's CPUs hold)."""
+    cluster address, where ``workers`` caps the jobs in flight (default: what the cluster's CPUs hold). ``group``:
+    seeds per worker process (:class:`RunPlan`); default 0 (all, one process per device) with ``device="cuda"``,
+    else 1; Ray runs one job per task."""
+    if group is not None and (isinstance(group, bool) or not isinstance(group, int) or group < 0):
+        raise InputValueError(f"--group: expected an integer >= 0, got {group}")
+    if group is None:
+        group = 0 if device == "cuda" else 1
+    if ray is not None and group != 1:
+        group = 1
     for name, value in (("--workers", workers), ("--threads", threads)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise InputValueError(f"{name}: expected an integer >= 1, got {value}")
@@ -58,4 +71,4 @@ def plan_run(*, workers: int | None = None, threads: int | None = None, device: 
     threads = threads or max(1, cpus // workers)
     return RunPlan(workers=workers, threads=threads, cpus=cpus, device=device,
                    backend="ray" if ray else "local", ray_address="local" if ray else None,
-                   gpus=gpus if device == "cuda" else ())
+                   gpus=gpus if device == "cuda" else (), group=group)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from .._numerics import ENV_MODE, portable_env
 
-__all__ = ["RUN_FLAGS", "UNSUITABLE", "Tee", "command", "describe_exit", "environment", "popen_kwargs",
+__all__ = ["RUN_FLAGS", "UNSUITABLE", "Tee", "command", "group_command", "describe_exit", "environment", "popen_kwargs",
            "record_unsuitable", "run_device", "write_check"]
 
 RUN_FLAGS = {"synthesize": ("--device", "--no-progress"), "manipulate": ("--no-progress",), "capture": ("--device",)}
@@ -50,6 +50,14 @@ def run_device(method: str, device: str) -> str:
 def command(argv: list[str], stage: Path, threads: int, device: str) -> list[str]:
     """The worker's command line for a job's ``argv`` (:meth:`torchhand.batch.manifest.Job.argv`)."""
     return [sys.executable, "-m", "torchhand.cli.batch_worker", "--stage", str(stage), "--threads", str(threads),
+            "--device", device, "--", *argv]
+
+
+def group_command(argv: list[str], each: list, threads: int, device: str) -> list[str]:
+    """The worker's command line for synthesis jobs that differ only by seed: ``argv`` without ``--seed``, and per
+    job its (seed, staging directory) in ``each``."""
+    pairs = [a for seed, stage in each for a in ("--each", f"{seed}={stage}")]
+    return [sys.executable, "-m", "torchhand.cli.batch_worker", *pairs, "--threads", str(threads),
             "--device", device, "--", *argv]
 
 

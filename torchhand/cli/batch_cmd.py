@@ -42,6 +42,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run the jobs as Ray tasks: 'auto' starts a local Ray instance with workers x threads CPUs, "
                         "an address joins a cluster (pip install 'torchhand[ray]')")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="device of every job (default cpu)")
+    p.add_argument("--group", type=int, default=None, metavar="N",
+                   help="synthesis jobs that differ only by seed run N to a worker process, their searches as one "
+                        "batch (each job's files are the ones it gets alone); 0: all of them, split over the "
+                        "workers (default with --device cuda: one process per GPU), 1: one job per process (default "
+                        "on the CPU); Ray runs one job per task")
     p.add_argument("--update", action="store_true",
                    help="accept a manifest whose jobs differ from those DIR was started with: it becomes the "
                         "batch's; finished jobs it shares are kept")
@@ -77,7 +82,8 @@ def run(args) -> int:
     from ..batch import load_manifest, plan_run, run_batch
     from ..batch.store import validate_out
 
-    plan = plan_run(workers=args.workers, threads=args.threads, device=args.device, ray=args.ray)  # bad numbers
+    plan = plan_run(workers=args.workers, threads=args.threads, device=args.device, ray=args.ray,
+                    group=args.group)  # bad numbers
     manifest = load_manifest(args.manifest)
     if args.ray is not None:
         from ..batch.ray_backend import check_address, require_ray
@@ -87,7 +93,8 @@ def run(args) -> int:
             check_address(args.ray)
     gpus = _gpus(args)
     if gpus:
-        plan = plan_run(workers=args.workers, threads=args.threads, device=args.device, ray=args.ray, gpus=gpus)
+        plan = plan_run(workers=args.workers, threads=args.threads, device=args.device, ray=args.ray, gpus=gpus,
+                        group=args.group)
     validate_out(args.out, manifest, update=args.update)
     bar = Progress("batch", disable=args.no_progress)
     write = (lambda line: bar.bar.write(line, file=sys.stdout)) if bar.bar is not None else print
@@ -99,7 +106,9 @@ def run(args) -> int:
     else:
         where = f"Ray cluster {plan.ray_address}, {_n(plan.threads, 'thread')} per job"
     write(f"batch: {len(manifest.jobs)} jobs from {args.manifest} into {args.out}; {where}"
-          + (" on Ray" if plan.ray_address == "local" else "") + f", device {plan.device}")
+          + (" on Ray" if plan.ray_address == "local" else "") + f", device {plan.device}"
+          + ("" if plan.group == 1 else "; seeds of a synthesis job batched in one process ("
+             + ("all, split over the workers" if plan.group == 0 else f"{plan.group} at a time") + ")"))
 
     def notify(kind, job_id, record, c):
         if kind == "finish":

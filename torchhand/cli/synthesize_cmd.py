@@ -44,6 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="run these seeds as one batch (e.g. 0-7 or 0,3,5): one result per seed in OUT/seed_S/, each "
                         "the one --seed S gives alone, byte for byte with a node budget; their node tests share "
                         "batches (docs/synthesis.md, 'Many seeds at once')")
+    p.add_argument("--out-each", action="append", default=[], metavar="SEED=DIR", help=argparse.SUPPRESS)
+    #              (with --seeds: each seed's result directory, instead of OUT/seed_S; the batch's worker uses it)
     p.add_argument("--epsilon", type=float, default=10.0,
                    help="expected number of search nodes per path; windows are T/epsilon frames (default 10)")
     p.add_argument("--strategy", default="mixed", choices=list(STRATEGIES),
@@ -249,12 +251,18 @@ def _writers(args, seeds) -> dict:
     if seeds is None:
         return {None: ResultWriter(args.out, overwrite=args.overwrite)}
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
+    each = {}
+    for item in args.out_each:
+        seed, _, path = item.partition("=")
+        each[int(seed)] = Path(path)
+    if each and sorted(each) != sorted(seeds):
+        raise InputValueError(f"--out-each: expected one directory for each seed of --seeds, got {sorted(each)}")
+    if not each and out.exists() and not out.is_dir():
         raise InputValueError(f"--out {out}: exists and is not a directory")
     writers = {}
     try:
         for seed in seeds:
-            writers[seed] = ResultWriter(out / f"seed_{seed}", overwrite=args.overwrite)
+            writers[seed] = ResultWriter(each.get(seed, out / f"seed_{seed}"), overwrite=args.overwrite)
     except BaseException:
         for w in writers.values():
             w.abandon()
