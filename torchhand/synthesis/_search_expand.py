@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 import torch
 
 from ._node_kinematics import rolled_local
-from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, FORCE_ZERO, Guides, contact_slots,
-                        run_node_test)
+from .node_test import (CAUSE_DYNAMIC, CAUSE_FINGERS, CAUSE_KINEMATIC, CAUSE_NONE, FORCE_ZERO, Guides,
+                        contact_slots, run_node_test)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .search import _Search
@@ -155,6 +155,21 @@ def _tally(books: list, owner: torch.Tensor, rows: torch.Tensor) -> list[int]:
     return torch.bincount(owner[rows.cpu()], minlength=len(books)).tolist()
 
 
+def _count(books: list, owner: torch.Tensor, sel: torch.Tensor, cause: torch.Tensor, frames: torch.Tensor) -> None:
+    """A frame's counters, each row's to the search that owns it: node tests, dead ends, rejections by cause and
+    by frame. sel: the rows tested (n,); cause: their verdicts (n,); frames: their frames (n,)."""
+    bad = cause != CAUSE_NONE
+    for book, n_run, n_bad in zip(books, _tally(books, owner, sel), _tally(books, owner, sel[bad])):
+        book.nodes_tested += n_run
+        book.dead_ends += n_bad
+    for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
+                           (CAUSE_DYNAMIC, "dynamic")):
+        for book, n in zip(books, _tally(books, owner, sel[cause == cause_id])):
+            book.rejections[name] += n
+    for r, tf, c_id in zip(sel[bad].tolist(), frames[bad].tolist(), cause[bad].tolist()):
+        books[int(owner[r])].rejections_by_frame[tf][c_id - 1] += 1
+
+
 def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: torch.Tensor,
                  on_call=None, max_rows: int | None = None) -> WindowOutcome:
     """:func:`run_windows` for candidates of one or many searches that share the problem's node-test fields (the
@@ -212,16 +227,8 @@ def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: t
                           weights[sel], ns, prev_mask[sel], max_rows, on_call)
         ok = res.feasible
         bad = sel[~ok]
-        for book, n_run, n_bad in zip(books, _tally(books, owner, sel), _tally(books, owner, bad)):
-            book.nodes_tested += n_run
-            book.dead_ends += n_bad
-        for cause_id, name in ((CAUSE_KINEMATIC, "kinematic"), (CAUSE_FINGERS, "finger_finger"),
-                               (CAUSE_DYNAMIC, "dynamic")):
-            for book, n in zip(books, _tally(books, owner, sel[res.cause == cause_id])):
-                book.rejections[name] += n
+        _count(books, owner, sel, res.cause, t0[sel] + k)
         fail_cause[bad] = res.cause[~ok]
-        for r, tf, c_id in zip(bad.tolist(), (t0[bad] + k).tolist(), res.cause[~ok].tolist()):
-            books[int(owner[r])].rejections_by_frame[tf][c_id - 1] += 1
         fail_k[bad] = k
         for r in (~ok).nonzero().squeeze(-1).tolist():
             gi = sel[r].item()
