@@ -441,24 +441,25 @@ def test_kill_9_of_one_worker_is_a_recorded_failure_and_a_rerun_finishes_it(tmp_
 
 # ------------------------------------------------------------------------------------ seeds in one worker process
 
-SIX = SMALL + '[[jobs]]\nscenes = ["box-turn"]\nseeds = [0, 1, 2, 3]\n\n[[jobs]]\nscenes = ["bottle-turn"]\nseeds = [5]\n' \
-    + '\n[[jobs]]\nscenes = ["box-turn"]\nseeds = [7]\ntrees = 3\n'
+FOUR_GROUPED = SMALL + '[[jobs]]\nscenes = ["box-turn"]\nseeds = [0, 1, 2]\n\n[[jobs]]\nscenes = ["bottle-turn"]\n' \
+    + 'seeds = [5]\n'
+SIX = FOUR_GROUPED + '\n[[jobs]]\nscenes = ["box-turn"]\nseeds = [7, 8]\ntrees = 3\n'
 
 
 def test_seeds_grouped_in_one_process_give_each_jobs_own_files(tmp_path):
-    """``--group 0`` runs box-turn's four seeds as one batched process (one scheduler), the other jobs alone: every
+    """``--group 0`` runs box-turn's three seeds as one batched process (one scheduler), the other job alone: every
     job is finished once, in its own directory with its check, and its solution arrays are those of the same job run
     one per process."""
-    manifest = _write(tmp_path / "batch.toml", SIX)
+    manifest = _write(tmp_path / "batch.toml", FOUR_GROUPED)
     grouped, alone = tmp_path / "grouped", tmp_path / "alone"
     assert cli(["batch", str(manifest), "--out", str(grouped), "--workers", "1", "--group", "0",
                 "--no-progress"]) == 0
     assert cli(["batch", str(manifest), "--out", str(alone), "--workers", "2", "--no-progress"]) == 0
     ids = set(load_manifest(manifest).ids)
-    assert len(ids) == 6
+    assert len(ids) == 4
     _assert_exactly_once(grouped, ids)
     starts = [e for e in _events(grouped) if e["event"] == "start"]
-    assert sorted(e.get("group", 1) for e in starts) == [1, 1, 4, 4, 4, 4]
+    assert sorted(e.get("group", 1) for e in starts) == [1, 3, 3, 3]
     assert len({e["pid"] for e in starts if e.get("group")}) == 1
     assert json.loads((grouped / "batch.json").read_text())["runs"][-1]["group"] == 0
     for d in _job_dirs(grouped):
@@ -468,7 +469,7 @@ def test_seeds_grouped_in_one_process_give_each_jobs_own_files(tmp_path):
         for x, y in zip(a, b):
             assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x), d.name
     assert cli(["batch", str(manifest), "--out", str(grouped), "--group", "0", "--no-progress"]) == 0
-    assert len([e for e in _events(grouped) if e["event"] == "start"]) == 6          # a rerun runs nothing
+    assert len([e for e in _events(grouped) if e["event"] == "start"]) == 4          # a rerun runs nothing
 
 
 def test_grouping_keeps_other_jobs_alone_and_splits_over_workers():
@@ -483,8 +484,8 @@ def test_grouping_keeps_other_jobs_alone_and_splits_over_workers():
     todo = [(j, 1) for j in jobs]
     sizes = lambda plan: sorted(len(u) for u in units(todo, plan))
     assert sizes(plan_run(workers=1, threads=1, cpus=2)) == [1] * 6
-    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=0)) == [1, 1, 4]
-    assert sizes(plan_run(workers=2, threads=1, cpus=2, group=0)) == [1, 1, 2, 2]
-    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=3)) == [1, 1, 1, 3]
+    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=0)) == [1, 2, 3]
+    assert sizes(plan_run(workers=2, threads=1, cpus=2, group=0)) == [1, 1, 1, 1, 2]
+    assert sizes(plan_run(workers=1, threads=1, cpus=2, group=2)) == [1, 1, 2, 2]
     with pytest.raises(TorchhandError, match="--group"):
         plan_run(workers=1, threads=1, cpus=2, group=-1)

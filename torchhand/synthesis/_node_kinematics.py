@@ -29,15 +29,13 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     P = slot_link.shape[0]
     nail_local = hand.fingertip + hand.nail_normal                      # (F, 3), distal frame
     ax_link, ax_local, ax_r = _axis_points(hand)
-    A_ = ax_link.shape[0]
     link_all = torch.cat([slot_link, hand.distal_link, hand.distal_link, ax_link])
     eye = torch.eye(D, dtype=q.dtype, device=q.device)
     reg = s.reg_weight ** 2
     R_inv, t_inv = T_inv[:, None, :3, :3], T_inv[:, None, :3, 3]
-    # The problem separates by finger: every joint moves one finger's links, and every residual depends on one
-    # finger's joints (a guiding slot on its link, its nail, its capsule points; the palm's slot is constant).
-    # So damping and step acceptance are per finger (group F collects what belongs to no finger): one finger's
-    # rejected step does not hold back the others, as F independent solves would behave, in one batched solve.
+    # The problem separates by finger (every joint moves one finger's links, every residual depends on one finger's
+    # joints; the palm's slot is constant): damping and step acceptance are per finger (group F: what belongs to no
+    # finger), so one finger's rejected step does not hold back the others, in one batched solve.
     G = F + 1
     lf = hand.link_finger
     table, ground = problem.table_height, problem.ground
@@ -50,14 +48,14 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
     free = (hi > lo).to(q.dtype)                                         # (N, D)
     lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
     best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
-    best_A = best_g = None
     stopped = torch.zeros(N, dtype=torch.bool, device=q.device)
+    best_A = best_g = None
     for it in range(iters + 1):
         if roll is not None:
             facing = capsule_point_facing(hand, hand.forward_kinematics(q, root), slot_link.expand(N, P), target)
             slot_local = torch.where(roll[..., None], facing, slot_local)
         local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
-                           ax_local.expand(N, A_, 3)], 1)
+                           ax_local.expand(N, ax_link.shape[0], 3)], 1)
         _, x, J = hand.kinematics(q, link_all, local, root)
         J = J * free[:, None, None, :]          # a joint whose box is a point (a locked wrist) couples no finger
         r = (x[:, :P] - target) * weight[..., None]                         # (N, P, 3)
@@ -109,12 +107,11 @@ def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, s
         y = torch.linalg.solve_triangular(L, -best_g.unsqueeze(-1), upper=False)
         step = torch.linalg.solve_triangular(L.transpose(-1, -2), y, upper=True).squeeze(-1)
         q = torch.minimum(torch.maximum(best_q + step, lo), hi)
-        # a row whose steps fell below 1e-4 rad keeps its pose (checked every 4 iterations, so a row's answer
-        # does not depend on the other rows of its batch); all of them: stop (a host sync)
-        if it % 4 == 3:
-            stopped = stopped | ((q - best_q).abs().amax(-1) < 1e-4)
-            if bool(stopped.all()):
-                break
+        # every 4 iterations a row whose steps fell below 1e-4 rad keeps its pose (its answer is its own, whatever
+        # the other rows of the batch do); once all have: stop (a host sync)
+        stopped = stopped | ((q - best_q).abs().amax(-1) < 1e-4) if it % 4 == 3 else stopped
+        if it % 4 == 3 and bool(stopped.all()):
+            break
     return best_q
 
 
