@@ -36,6 +36,11 @@ class Guides:
     slide: torch.Tensor
     roll: torch.Tensor | None = None
 
+    def rows(self, index: torch.Tensor) -> "Guides":
+        """The guides of the candidates ``index`` (n,) long."""
+        return Guides(self.active[index], self.link[index], self.local[index], self.obj[index], self.slide[index],
+                      None if self.roll is None else self.roll[index])
+
 
 @dataclass(frozen=True)
 class NodeTestSettings:

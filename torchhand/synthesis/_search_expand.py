@@ -263,8 +263,7 @@ def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max
     parts = 1 if max_rows is None or n <= max_rows else -(-n // max_rows)
     results = []
     for idx in torch.arange(n, device=t.device).tensor_split(parts):
-        g = Guides(**{f.name: None if getattr(guides, f.name) is None else getattr(guides, f.name)[idx]
-                      for f in dataclasses.fields(guides)}) if parts > 1 else guides
+        g = guides.rows(idx) if parts > 1 else guides
         rows = (lambda x: x[idx]) if parts > 1 else (lambda x: x)
         results.append(run_node_test(p, rows(t), rows(q_prev), rows(first), g, rows(weights), settings=ns,
                                      prev_mask=rows(prev_mask)))

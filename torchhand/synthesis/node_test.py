@@ -96,8 +96,7 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
     """
     if t.shape[0] == 1:     # a batch of one would take other code paths than the same row among others
         two = torch.zeros(2, dtype=torch.long, device=t.device)
-        guides = Guides(**{f.name: None if getattr(guides, f.name) is None else getattr(guides, f.name)[two]
-                           for f in dataclasses.fields(guides)})
+        guides = guides.rows(two)
         res = run_node_test(problem, t[two], q_prev[two], first[two], guides, None if weights is None else
                             weights[two], settings, dynamics, None if prev_mask is None else prev_mask[two])
         return FrameResult(**{f.name: getattr(res, f.name)[:1] for f in dataclasses.fields(res)})
