@@ -354,9 +354,9 @@ def test_a_second_batch_process_on_the_same_directory_is_refused(local_batch, tm
 # --------------------------------------------------------------------------------------------- kill -9
 
 
-def _start_batch(manifest: Path, out: Path) -> subprocess.Popen:
+def _start_batch(manifest: Path, out: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "torchhand.cli", "batch", str(manifest), "--out", str(out),
-                             "--workers", "2", "--no-progress"], stdout=subprocess.DEVNULL,
+                             "--workers", "2", "--no-progress", *extra], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
 
 
@@ -470,6 +470,37 @@ def test_seeds_grouped_in_one_process_give_each_jobs_own_files(tmp_path):
             assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x), d.name
     assert cli(["batch", str(manifest), "--out", str(grouped), "--group", "0", "--no-progress"]) == 0
     assert len([e for e in _events(grouped) if e["event"] == "start"]) == 4          # a rerun runs nothing
+
+
+def test_kill_9_of_a_grouped_worker_fails_its_jobs_and_a_rerun_alone_finishes_them(tmp_path):
+    """A worker running three seeds in one process dies: each of its jobs still running gets its own failed attempt
+    (none leaves a directory), the other jobs finish, and a rerun without grouping finishes each job exactly once."""
+    long = FOUR_GROUPED.replace("max_nodes = 300", "max_nodes = 600").replace("solutions = 1", "solutions = 50")
+    manifest = _write(tmp_path / "batch.toml", long)             # the group runs its budget: there is time to kill
+    ids = set(load_manifest(manifest).ids)
+    out = tmp_path / "out"
+    proc = _start_batch(manifest, out, "--workers", "1", "--group", "0")
+    try:
+        group = _wait_for("a running group", lambda: [e for e in _in_flight(out) if e.get("group") == 3])
+        pid = group[0]["pid"]
+        os.kill(pid, signal.SIGKILL)
+        rc = proc.wait(timeout=HANG_GUARD_S)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert rc == 1
+    ev = _events(out)
+    ran = {(e["job"], e["attempt"]) for e in ev if e["event"] == "start" and e["pid"] == pid}
+    failed = {(e["job"], e["attempt"]) for e in ev if e["event"] == "fail"}
+    finished = {(e["job"], e["attempt"]) for e in ev if e["event"] == "finish"}
+    assert len(ran) == 3 and failed and failed <= ran and ran <= failed | finished and not failed & finished
+    assert all("SIGKILL" in e["error"] for e in ev if e["event"] == "fail")
+    assert not any((out / "jobs" / job).exists() for job, _ in failed)
+    assert {job for job, _ in finished} == ids - {job for job, _ in failed}
+    assert cli(["batch", str(manifest), "--out", str(out), "--workers", "2", "--no-progress"]) == 0
+    _assert_exactly_once(out, ids)
+    again = [e for e in _events(out) if e["event"] == "start" and (e["job"], e["attempt"] - 1) in failed]
+    assert len(again) == len(failed) and not any(e.get("group") for e in again)
 
 
 def test_grouping_keeps_other_jobs_alone_and_splits_over_workers():

@@ -258,18 +258,19 @@ def _linearise(p: _Problem, x: torch.Tensor, root: torch.Tensor, cons: tuple):
     lay, wdt = p.layout, _SOLVE_DTYPE
     S, n = x.shape[0], lay.joints.shape[1]
     poses, X, JX = p.hand.kinematics(x, p.frame_links, p.frame_points, root)  # (S, 4L, 3), (S, 4L, 3, D)
-    D = JX.shape[-1]
-    JX = JX.to(wdt)
+    P, D = JX.shape[1], JX.shape[-1]
+    flat = JX.to(wdt).reshape(S, P * 3 * D)
+    corner = torch.arange(4, device=x.device)[:, None] * 3 + torch.arange(3, device=x.device)   # (4, 3)
     out = []
     for con in cons:
         C = con.link.shape[1]
         u = con.local.to(wdt) / _FRAME_SCALE
         w = torch.cat([1 - u.sum(-1, keepdim=True), u], dim=-1)                   # (S, C, 4)
-        idx = (4 * con.link[..., None] + torch.arange(4, device=x.device)).reshape(S, 4 * C)
-        J = JX.gather(1, idx[..., None, None].expand(S, 4 * C, 3, D)).view(S, C, 4, 3, D)
-        J = (J * w[..., None, None]).sum(2)                                       # (S, C, 3, D)
+        # only the n columns of the constraint's finger, of its link's four points: (S, C, 4, 3, n)
         cols = lay.joints[con.finger]                                              # (S, C, n)
-        Jl = J.gather(3, cols[:, :, None, :].expand(S, C, 3, n)) * lay.valid[con.finger][:, :, None, :]
+        row = 12 * con.link[..., None, None] + corner                             # (S, C, 4, 3)
+        J = flat.gather(1, (row[..., None] * D + cols[:, :, None, None, :]).reshape(S, -1)).view(S, C, 4, 3, n)
+        Jl = (J * w[..., None, None]).sum(2) * lay.valid[con.finger][:, :, None, :]   # (S, C, 3, n)
         out.append((_positions(poses, con), Jl))
     return tuple(out)
 

@@ -1,0 +1,114 @@
+"""Finishing searched paths (reconstruction and the exact re-check), checkout against checkout, in one run.
+
+``python scripts/bench_finish_ab.py PATHS.pt CHECKOUT [CHECKOUT ...] [--alternations 5]``
+``python scripts/bench_finish_ab.py PATHS.pt --record [--scene box-turn] [--seed 0] [--count 3]``
+
+``--record`` runs a search (one thread, the scene's default node test) and saves the first ``--count`` full paths it
+finds, with the scene and seed, to PATHS.pt. Then each CHECKOUT (a source tree imported through ``PYTHONPATH``: ``.``
+for the current one; an older commit: ``git worktree add /tmp/old <sha>``, then link
+``/tmp/old/torchhand/kernels -> ../kernels`` and ``/tmp/old/torchhand/render -> ../render``) runs in turn,
+``--alternations`` times, each in its own process with one thread: it rebuilds the seed's problem and finishes every
+saved path (``finalize_solution``, the synthesis' own settings), the first round a warm-up, then two timed rounds.
+Printed per checkout: the seconds per path of every alternation (the median of its rounds), their median, its ratio
+to the first checkout, and a digest of the finished motions, which shows whether the checkouts compute the same ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+
+
+def _problem(scene_name: str, seed: int):
+    import torch
+
+    from torchhand.scene import load_scene
+    from torchhand.synthesis.problem import build_problem
+
+    return build_problem(load_scene(scene_name), torch.Generator().manual_seed(seed))
+
+
+def record(path: str, scene_name: str, seed: int, paths: int) -> None:
+    """Search the scene and save its first full paths (as searched, before finishing)."""
+    import torch
+
+    from torchhand.synthesis import pipeline
+
+    torch.set_num_threads(1)
+    found = []
+    finalize = pipeline.finalize_solution
+
+    def keep(problem, sol, index, **kwargs):
+        found.append(sol)
+        return finalize(problem, sol, index, **kwargs)
+
+    pipeline.finalize_solution = keep
+    pipeline.synthesize(scene_name, seed=seed, solutions=paths)
+    torch.save({"scene": scene_name, "seed": seed, "paths": found[:paths]}, path)
+    print(f"saved {len(found[:paths])} paths of {scene_name} seed {seed} to {path}")
+
+
+def one(path: str) -> dict:
+    """This process's measurement (run under the checkout's PYTHONPATH)."""
+    import time
+
+    import torch
+
+    torch.set_num_threads(1)
+    from torchhand.synthesis.node_test import NodeTestSettings
+    from torchhand.synthesis.pipeline import finalize_solution
+
+    saved = torch.load(path, weights_only=False)
+    problem = _problem(saved["scene"], saved["seed"])
+    rounds, digest = [], hashlib.sha256()
+    for r in range(3):
+        t = time.perf_counter()
+        fins = [finalize_solution(problem, sol, i, ns=NodeTestSettings())[0] for i, sol in enumerate(saved["paths"])]
+        if r:
+            rounds.append((time.perf_counter() - t) / len(saved["paths"]))
+    for fin in fins:
+        digest.update(b"none" if fin is None else fin.q.detach().cpu().numpy().tobytes())
+    return {"s_per_path": statistics.median(rounds), "digest": digest.hexdigest()[:16]}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("paths", help="the saved paths (written by --record)")
+    p.add_argument("checkouts", nargs="*", help="source trees to compare (default: the current one)")
+    p.add_argument("--alternations", type=int, default=5)
+    p.add_argument("--record", action="store_true", help="search and save the paths first")
+    p.add_argument("--scene", default="box-turn")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--count", type=int, default=3, help="--record: paths saved (default 3)")
+    p.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
+    a = p.parse_args(argv)
+    if a.record:
+        record(a.paths, a.scene, a.seed, a.count)
+        return 0
+    if a.one:
+        print(json.dumps(one(a.paths)))
+        return 0
+    trees = [os.path.abspath(c) for c in (a.checkouts or ["."])]
+    runs = {t: [] for t in trees}
+    for _ in range(a.alternations):
+        for t in trees:
+            env = dict(os.environ, PYTHONPATH=t, OMP_NUM_THREADS="1")
+            out = subprocess.run([sys.executable, os.path.abspath(__file__), os.path.abspath(a.paths), "--one"],
+                                 env=env, capture_output=True, text=True, check=True, cwd=t)
+            runs[t].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    base = statistics.median(r["s_per_path"] for r in runs[trees[0]])
+    for t in trees:
+        per = [r["s_per_path"] for r in runs[t]]
+        m = statistics.median(per)
+        print(f"{t}: {' / '.join(f'{x:.2f}' for x in per)} s per path; median {m:.2f} s, ratio {m / base:.2f}; "
+              f"motions {runs[t][-1]['digest']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
