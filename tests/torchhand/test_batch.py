@@ -468,6 +468,12 @@ def test_seeds_grouped_in_one_process_give_each_jobs_own_files(tmp_path):
         assert len(a) == len(b)
         for x, y in zip(a, b):
             assert x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x), d.name
+    # the scene row's rate: the group's node tests over its one shared search, not over three
+    box = [json.loads((d / "stats.json").read_text()) for d in _job_dirs(grouped)
+           if json.loads((d / "stats.json").read_text())["scene"] == "box-turn"]
+    with open(grouped / "summary_scenes.csv") as fh:
+        rate = float(next(r for r in csv.DictReader(fh) if r["scene"] == "box-turn")["node_tests_per_s"])
+    assert rate == pytest.approx(box[0]["timings_s"]["batch_nodes"] / box[0]["timings_s"]["search_s"], rel=1e-6)
     assert cli(["batch", str(manifest), "--out", str(grouped), "--group", "0", "--no-progress"]) == 0
     assert len([e for e in _events(grouped) if e["event"] == "start"]) == 4          # a rerun runs nothing
 

@@ -7,6 +7,7 @@ runs in a few minutes; the contract is byte-identity, so the comparisons are exa
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 from pathlib import Path
 
@@ -150,6 +151,14 @@ def test_seeds_option_writes_each_seed_as_alone(tmp_path, capsys):
     assert len(list((tmp_path / "alone" / "solutions").glob("sol_*.npz"))) >= 1
     assert solutions_digest(tmp_path / "batch" / "seed_2") == solutions_digest(tmp_path / "alone")
     assert torchhand.check_result(tmp_path / "batch" / "seed_1").passed
+    # each seed's own preparation and finishing; the batch's search, node tests and rate
+    stats = [json.loads((tmp_path / "batch" / f"seed_{s}" / "stats.json").read_text()) for s in (1, 2)]
+    t1, t2 = (st["timings_s"] for st in stats)
+    assert t1["batched"] == t2["batched"] == 2 and t1["search_s"] == t2["search_s"] > 0
+    assert t1["batch_nodes"] == t2["batch_nodes"] == stats[0]["nodes_tested"] + stats[1]["nodes_tested"]
+    assert 0 < t2["prepare_s"] < t1["total_s"] and t1["prepare_s"] + t2["prepare_s"] < t1["total_s"]
+    assert stats[0]["nodes_per_second"] == pytest.approx(t1["batch_nodes"] / t1["search_s"])
+    assert "in a batch of 2" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv, needle", [

@@ -87,13 +87,19 @@ def job_rows(root) -> list[dict]:
                            success_frames=stats.get("success_frames"), success_ratio=stats.get("success_ratio"),
                            solution_ratio=stats.get("solution_ratio"), paths_found=stats.get("paths_found"),
                            node_tests_per_s=stats.get("nodes_per_second"),
-                           search_s=(stats.get("timings_s") or {}).get("search_s"),
+                           search_s=_search_share(stats.get("timings_s") or {}),
                            nodes_tested=stats.get("nodes_tested"))
         else:
             failed = bool(ends) and ends[-1].get("event") == "fail"
             row.update(status="failed" if failed else "pending", error=ends[-1].get("error", "") if failed else "")
         rows.append(row)
     return rows
+
+
+def _search_share(timings: dict):
+    """A job's seconds of search; a job of a group (``batch --group``) its share of the group's shared search."""
+    search = timings.get("search_s")
+    return None if search is None else search / timings.get("batched", 1)
 
 
 def _outcome(method: str, stats: dict, d: Path) -> str:

@@ -452,8 +452,8 @@ def synthesize_seeds(scene, seeds, *, solutions: int = 10, max_nodes: int | None
     """:func:`synthesize` for every seed of ``seeds`` in one batched run: the scene is prepared once (its SDF and
     models shared), and the searches advance together, their candidates tested in one node-test call per frame
     (:func:`.multi.search_many`). Each seed's result is the one :func:`synthesize` gives it alone (the same
-    solutions, byte for byte, with a node budget); its timings are the batch's (``timings["batched"]``: the number
-    of seeds).
+    solutions, byte for byte, with a node budget); its timings are its own preparation and finishing and the batch's
+    search and total (:func:`_batch_timings`).
 
     progress: callable(stage, info) as in :func:`synthesize`, ``info["seed"]`` naming the seed; on_solution:
     callable(result, index) as each seed's solution is accepted; multi_stats: a :class:`.multi.MultiStats` to
@@ -472,12 +472,26 @@ def synthesize_seeds(scene, seeds, *, solutions: int = 10, max_nodes: int | None
                  reconstruct=reconstruct, max_joint_speed=max_joint_speed, keep_unsmoothed=keep_unsmoothed,
                  min_difference=min_difference, node_settings=node_settings, stall_nodes=stall_nodes)
     runs: list[_Run] = []
+    own_prep = []
     for seed in seeds:
+        t_seed = time.perf_counter()
         runs.append(_start(scene, fits, seed, t_start, o, progress, on_solution,
                            share=runs[0].problem if runs else None))
+        own_prep.append(time.perf_counter() - t_seed)
+    t_search = time.perf_counter()
     outcomes = search_many([SearchTask(r.problem, r.init, r.result.settings, node_settings, seed, r.on_round,
                                        r.accept) for r, seed in zip(runs, seeds)], stats=multi_stats)
     results = [_finish(r, out.stats, out.partial) for r, out in zip(runs, outcomes)]
-    for res in results:
-        res.timings["batched"] = len(seeds)
+    _batch_timings(results, runs, own_prep, time.perf_counter() - t_search)
     return results
+
+
+def _batch_timings(results: list, runs: list, own_prep: list, search_wall: float) -> None:
+    """Timings of the seeds of one batch: each seed's own preparation and finishing, the batch's shared search (its
+    wall time less all finishing) and total, the number of seeds (``batched``) and of node tests (``batch_nodes``),
+    whose ratio to ``search_s`` is the batch's node-test rate."""
+    search_s = search_wall - sum(r.t_final[0] for r in runs)
+    nodes = sum(res.stats.nodes_tested for res in results)
+    for res, r, prep in zip(results, runs, own_prep):
+        res.timings.update(prepare_s=prep, search_s=search_s, finalize_s=r.t_final[0], batched=len(results),
+                           batch_nodes=nodes)
