@@ -97,6 +97,29 @@ def test_guided_fingertip_reaches_its_target_within_joint_limits(box_turn_proble
     assert bool(res.kin_fail[0, 0, 1]) and int(res.cause[0]) == 1
 
 
+def test_kinematic_verdicts_are_the_node_tests(box_turn_problem):
+    """The pruning's kinematic test alone gives the node test's ``kin_fail`` bit for bit, on patch samples of the
+    hold (some reachable, some not) and on a single row."""
+    from torchhand.synthesis.node_test import kinematic_verdicts
+
+    _, p = box_turn_problem
+    hand = p.hands[0]
+    N, t = 24, 30
+    gen = torch.Generator().manual_seed(5)
+    sample = torch.stack([p.patch[0, f, t].nonzero().squeeze(-1)[torch.randint(
+        int(p.patch[0, f, t].sum()), (N,), generator=gen)] for f in range(5)], 1)          # (N, 5)
+    active = torch.rand(N, 1, 5, generator=gen) < 0.7
+    guides = Guides(active, hand.distal_link.expand(N, 1, 5).clone(), pad_points(hand).expand(N, 1, 5, 3).clone(),
+                    p.surface[sample][:, None], torch.zeros(N, 1, 5, 3))
+    q_prev = hand.q_rest.expand(N, 1, -1).clone()
+    first = torch.ones(N, dtype=torch.bool)
+    full = run_node_test(p, torch.full((N,), t), q_prev, first, guides, dynamics=False).kin_fail
+    assert 0 < int(full.sum()) < int(active.sum())
+    assert torch.equal(kinematic_verdicts(p, torch.full((N,), t), q_prev, first, guides), full)
+    one = kinematic_verdicts(p, torch.full((1,), t), q_prev[:1], first[:1], guides.rows(torch.tensor([0])))
+    assert torch.equal(one, full[:1])
+
+
 # --- end to end ------------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from ..hand.collision import rigid_inverse
-from .node_test import Guides, NodeTestSettings, pad_points, run_node_test
+from .node_test import Guides, NodeTestSettings, kinematic_verdicts, pad_points
 from .problem import SynthesisProblem
 
 __all__ = ["InitialSamples", "prune_patches"]
@@ -95,10 +95,9 @@ def prune_patches(problem: SynthesisProblem, generator: torch.Generator, *, per_
                         local=pad_points(hand0).expand(n, H, F, 3).clone(), obj=problem.surface[sample],
                         slide=torch.zeros(n, H, F, 3, dtype=problem.dtype, device=device))
         q_prev = torch.stack([hd.q_rest for hd in problem.hands]).expand(n, H, -1).clone()
-        res = run_node_test(problem, torch.full((n,), t, device=device), q_prev,
-                         torch.ones(n, dtype=torch.bool, device=device), guides, settings=settings,
-                         dynamics=False)
-        good = active & ~res.kin_fail
+        kin_fail = kinematic_verdicts(problem, torch.full((n,), t, device=device), q_prev,
+                                      torch.ones(n, dtype=torch.bool, device=device), guides, settings)
+        good = active & ~kin_fail
         for h in range(H):
             for f in range(F):
                 ok[k, h, f, sample[good[:, h, f], h, f]] = True

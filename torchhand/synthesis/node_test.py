@@ -75,7 +75,8 @@ from .exact import capsule_depth as link_capsule_depth
 from .exact import mesh_normals
 from .problem import SynthesisProblem
 
-__all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "evaluate_poses", "pad_points",
+__all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "kinematic_verdicts", "evaluate_poses",
+           "pad_points",
            "contact_slots", "table_depth", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
 
 
@@ -159,6 +160,40 @@ def _motion_slide(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
     return direction, sliding
 
 
+def kinematic_verdicts(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
+                       guides: Guides, settings: NodeTestSettings = NodeTestSettings()) -> torch.Tensor:
+    """The kinematic test of :func:`run_node_test` alone, without the contacts and forces: ``kin_fail``, (N, H, F)
+    bool, the same verdicts as :func:`run_node_test` gives (its arguments)."""
+    if t.shape[0] == 1:     # a batch of one would take other code paths than the same row among others
+        two = torch.zeros(2, dtype=torch.long, device=t.device)
+        return kinematic_verdicts(problem, t[two], q_prev[two], first[two], guides.rows(two), settings)[:1]
+    fails = []
+    for h in range(problem.H):
+        _, poses, err, _ = _hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings)
+        fails.append(_kinematic_verdict(problem, problem.hands[h], t, poses, err, settings)[0])
+    return torch.stack(fails, 1)
+
+
+def _kinematic_verdict(problem: SynthesisProblem, hand, t: torch.Tensor, poses: torch.Tensor, err: torch.Tensor,
+                       s: NodeTestSettings):
+    """A hand's kinematic verdict per finger from its link poses (N, L, 4, 4) and guide error (N, F): the guide
+    missed, a finger's capsule in the object (or the table), or the palm's (every finger fails). Returns (fail
+    (N, F) bool, the links' capsule depth in the object (N, L))."""
+    lf = hand.link_finger                                                        # (L,)
+    fail = err > s.ik_tol                                                        # (N, F)
+    # penetration by the links' capsules (the samples miss an edge pressing in between them, see .exact)
+    cdepth = link_capsule_depth(hand, poses, problem.sdf, problem.object_inv[t])  # (N, L)
+    fingers_deep = _finger_depth(hand, -cdepth) > s.pen_tol
+    palm_deep = ((cdepth > s.pen_tol) & (lf < 0)).any(-1, keepdim=True)
+    if problem.table_height is not None or problem.ground is not None:
+        # below the table (into the table block, under the floor): a link's capsule reaching deeper than pen_tol
+        # into them fails its finger (or, for the palm, the hand)
+        under = table_depth(problem, hand, poses) > s.pen_tol                    # (N, L)
+        fingers_deep = fingers_deep | _finger_depth(hand, torch.where(under, -1.0, 0.0).to(cdepth.dtype)).bool()
+        palm_deep = palm_deep | (under & (lf < 0)).any(-1, keepdim=True)
+    return fail | fingers_deep | palm_deep, cdepth
+
+
 def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: torch.Tensor,
             weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool, prev=None) -> FrameResult:
     """Kinematic verdicts, contact collection and the dynamic test from each hand's (q, poses, guide error,
@@ -175,18 +210,7 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         dtype, device = q.dtype, q.device
         lf = hand.link_finger                                                        # (L,)
         deep = pen.deepest_value                                                     # (N, L)
-        fail = err > s.ik_tol                                                        # (N, F)
-        # penetration by the links' capsules (the samples miss an edge pressing in between them, see .exact)
-        cdepth = link_capsule_depth(hand, poses, problem.sdf, problem.object_inv[t])  # (N, L)
-        fingers_deep = _finger_depth(hand, -cdepth) > s.pen_tol
-        palm_deep = ((cdepth > s.pen_tol) & (lf < 0)).any(-1, keepdim=True)
-        if problem.table_height is not None or problem.ground is not None:
-            # below the table (into the table block, under the floor): a link's capsule reaching deeper than pen_tol
-            # into them fails its finger (or, for the palm, the hand)
-            under = table_depth(problem, hand, poses) > s.pen_tol                    # (N, L)
-            fingers_deep = fingers_deep | _finger_depth(hand, torch.where(under, -1.0, 0.0).to(deep.dtype)).bool()
-            palm_deep = palm_deep | (under & (lf < 0)).any(-1, keepdim=True)
-        fail = fail | fingers_deep | palm_deep
+        fail, cdepth = _kinematic_verdict(problem, hand, t, poses, err, s)
         kin_fail.append(fail)
         qs.append(q)
         errs.append(err)
