@@ -1,4 +1,5 @@
-"""Finishing searched paths (reconstruction and the exact re-check), checkout against checkout, in one run.
+"""Finishing searched paths (reconstruction and the exact re-check) and pruning a seed's patch samples, checkout
+against checkout, in one run.
 
 ``python scripts/bench_finish_ab.py PATHS.pt CHECKOUT [CHECKOUT ...] [--alternations 5]``
 ``python scripts/bench_finish_ab.py PATHS.pt --record [--scene box-turn] [--seed 0] [--count 3]``
@@ -8,9 +9,11 @@ finds, with the scene and seed, to PATHS.pt. Then each CHECKOUT (a source tree i
 for the current one; an older commit: ``git worktree add /tmp/old <sha>``, then link
 ``/tmp/old/torchhand/kernels -> ../kernels`` and ``/tmp/old/torchhand/render -> ../render``) runs in turn,
 ``--alternations`` times, each in its own process with one thread: it rebuilds the seed's problem and finishes every
-saved path (``finalize_solution``, the synthesis' own settings), the first round a warm-up, then two timed rounds.
-Printed per checkout: the seconds per path of every alternation (the median of its rounds), their median, its ratio
-to the first checkout, and a digest of the finished motions, which shows whether the checkouts compute the same ones.
+saved path (``finalize_solution``, the synthesis' own settings) and prunes the seed's patch samples
+(``prune_patches``), the first round a warm-up, then two timed rounds. Printed per checkout and stage: the seconds
+(per path; per pruning) of every alternation (the median of its rounds), their median, its ratio to the first
+checkout, and a digest of what it computed (the finished motions; the samples kept), which shows whether the
+checkouts compute the same.
 """
 
 from __future__ import annotations
@@ -60,20 +63,29 @@ def one(path: str) -> dict:
     import torch
 
     torch.set_num_threads(1)
+    from torchhand.synthesis.initial import prune_patches
     from torchhand.synthesis.node_test import NodeTestSettings
     from torchhand.synthesis.pipeline import finalize_solution
 
     saved = torch.load(path, weights_only=False)
     problem = _problem(saved["scene"], saved["seed"])
-    rounds, digest = [], hashlib.sha256()
+    finish, prune = [], []
     for r in range(3):
         t = time.perf_counter()
         fins = [finalize_solution(problem, sol, i, ns=NodeTestSettings())[0] for i, sol in enumerate(saved["paths"])]
+        t_finish = (time.perf_counter() - t) / len(saved["paths"])
+        t = time.perf_counter()
+        init = prune_patches(problem, torch.Generator().manual_seed(saved["seed"]))
+        t_prune = time.perf_counter() - t
         if r:
-            rounds.append((time.perf_counter() - t) / len(saved["paths"]))
+            finish.append(t_finish)
+            prune.append(t_prune)
+    motions = hashlib.sha256()
     for fin in fins:
-        digest.update(b"none" if fin is None else fin.q.detach().cpu().numpy().tobytes())
-    return {"s_per_path": statistics.median(rounds), "digest": digest.hexdigest()[:16]}
+        motions.update(b"none" if fin is None else fin.q.detach().cpu().numpy().tobytes())
+    kept = hashlib.sha256(init.ok.cpu().numpy().tobytes())
+    return {"finish_s": statistics.median(finish), "prune_s": statistics.median(prune),
+            "finish_digest": motions.hexdigest()[:16], "prune_digest": kept.hexdigest()[:16]}
 
 
 def main(argv=None) -> int:
@@ -101,12 +113,13 @@ def main(argv=None) -> int:
             out = subprocess.run([sys.executable, os.path.abspath(__file__), os.path.abspath(a.paths), "--one"],
                                  env=env, capture_output=True, text=True, check=True, cwd=t)
             runs[t].append(json.loads(out.stdout.strip().splitlines()[-1]))
-    base = statistics.median(r["s_per_path"] for r in runs[trees[0]])
-    for t in trees:
-        per = [r["s_per_path"] for r in runs[t]]
-        m = statistics.median(per)
-        print(f"{t}: {' / '.join(f'{x:.2f}' for x in per)} s per path; median {m:.2f} s, ratio {m / base:.2f}; "
-              f"motions {runs[t][-1]['digest']}")
+    for stage, unit in (("finish", "s per path"), ("prune", "s per pruning")):
+        base = statistics.median(r[f"{stage}_s"] for r in runs[trees[0]])
+        for t in trees:
+            per = [r[f"{stage}_s"] for r in runs[t]]
+            m = statistics.median(per)
+            print(f"{stage} {t}: {' / '.join(f'{x:.2f}' for x in per)} {unit}; median {m:.2f}, ratio {m / base:.2f}; "
+                  f"digest {runs[t][-1][f'{stage}_digest']}")
     return 0
 
 

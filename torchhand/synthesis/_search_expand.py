@@ -177,83 +177,81 @@ def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: t
     :class:`~.search.SearchStats` in ``books`` that owns the row (``owner`` (N,) long, CPU). A row's outputs do
     not depend on the other rows of the batch. on_call: optional callable(n) with each node-test call's batch size;
     max_rows: a frame's rows are tested in calls of at most this many (None: one call)."""
-    H, F = p.H, p.F
     device = p.device
     N = int(c.t0.shape[0])
-    t0 = c.t0
-    w = c.w
-    active = c.active
-    link = c.link
-    local = c.local
-    obj = c.obj
-    slide = c.slide
-    land = c.land
-    was_on = c.was_on
-    q_prev = c.q_prev
-    first = c.first
-    weights = c.weights
-    prev_mask = c.prev_mask
-    roll = c.roll
+    t0, w, active, link, local, obj, slide, land = c.t0, c.w, c.active, c.link, c.local, c.obj, c.slide, c.land
+    q_prev, prev_mask, roll = c.q_prev, c.prev_mask, c.roll
     any_roll = bool(roll.any())
-    step = slide_speed / p.fps
-    alive = torch.ones(N, dtype=torch.bool, device=device)
-    frames = {k: [] for k in KEEP}
-    g_frames = {k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")}
-    fail_cause = torch.zeros(N, dtype=torch.long, device=device)
-    fail_k = torch.zeros(N, dtype=torch.long, device=device)
-    fail_fingers = [None] * N
-    wmax = int(w.max())
-    for k in range(wmax):
-        run = alive & (k < w)
-        sel = run.nonzero().squeeze(-1)
+    out = WindowOutcome(alive=torch.ones(N, dtype=torch.bool, device=device), frames={k: [] for k in KEEP},
+                        g_frames={k: [] for k in ("guiding", "guide_obj", "guide_link", "guide_local")},
+                        fail_cause=torch.zeros(N, dtype=torch.long, device=device),
+                        fail_k=torch.zeros(N, dtype=torch.long, device=device), fail_fingers=[None] * N)
+    for k in range(int(w.max())):
+        sel = (out.alive & (k < w)).nonzero().squeeze(-1)
         if sel.numel() == 0:
             break
         if k > 0:
-            # sliding contacts advance along the surface, re-projected with the SDF
-            moving = slide[sel].norm(dim=-1, keepdim=True) > 0
-            pnew = obj[sel] + step * slide[sel]
-            sd, grad = p.sdf.query_with_grad(pnew.reshape(1, -1, 3))
-            n = grad.reshape(pnew.shape) / grad.reshape(pnew.shape).norm(dim=-1, keepdim=True).clamp_min(1e-9)
-            pnew = pnew - sd.reshape(pnew.shape[:-1])[..., None] * n
-            sdir = slide[sel] - (slide[sel] * n).sum(-1, keepdim=True) * n
-            sdir = sdir / sdir.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-            obj[sel] = torch.where(moving, pnew, obj[sel])
-            slide[sel] = torch.where(moving, sdir, slide[sel])
+            _advance_slides(p, obj, slide, sel, slide_speed / p.fps)
         act_k = active[sel] & (land[sel] <= k)
         guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None],
                         roll=roll[sel] & act_k if any_roll else None)
-        lands = active[sel] & (land[sel] == k) & ((k > 0) | ~was_on[sel])
-        res = _node_tests(p, t0[sel] + k, q_prev[sel], lands | (first[sel] & (k == 0))[:, None, None], guides,
-                          weights[sel], ns, prev_mask[sel], max_rows, on_call)
-        ok = res.feasible
-        bad = sel[~ok]
+        lands = active[sel] & (land[sel] == k) & ((k > 0) | ~c.was_on[sel])
+        res = _node_tests(p, t0[sel] + k, q_prev[sel], lands | (c.first[sel] & (k == 0))[:, None, None], guides,
+                          c.weights[sel], ns, prev_mask[sel], max_rows, on_call)
         _count(books, owner, sel, res.cause, t0[sel] + k)
-        fail_cause[bad] = res.cause[~ok]
-        fail_k[bad] = k
-        for r in (~ok).nonzero().squeeze(-1).tolist():
-            gi = sel[r].item()
-            if res.cause[r] == CAUSE_KINEMATIC:
-                fail_fingers[gi] = res.kin_fail[r].flatten().nonzero().squeeze(-1).tolist()
-            elif res.cause[r] == CAUSE_FINGERS:
-                fail_fingers[gi] = res.pair[r].tolist()
-        alive[bad] = False
+        _record_failures(out, sel, res, k)
         q_prev[sel] = res.q
         prev_mask[sel] = res.c_mask
-        # store this frame's outputs for every candidate (rows of the ones not run stay unused)
-        for key in KEEP:
-            full = getattr(res, key)
-            buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=device)
-            buf[sel] = full
-            frames[key].append(buf)
         if any_roll:                 # a rolling finger's guiding hand point is where the test put it this frame
             local[sel] = rolled_local(p, t0[sel] + k, res.q, guides, ns)
-        gl = torch.zeros(N, H, F, dtype=torch.bool, device=device)
-        gl[sel] = act_k
-        g_frames["guiding"].append(gl)
-        g_frames["guide_obj"].append(obj.clone())
-        g_frames["guide_link"].append(link.clone())
-        g_frames["guide_local"].append(local.clone())
-    return WindowOutcome(alive=alive, frames=frames, g_frames=g_frames, fail_cause=fail_cause, fail_k=fail_k, fail_fingers=fail_fingers)
+        _record_frame(out, sel, res, act_k, c)
+    return out
+
+
+def _advance_slides(p, obj: torch.Tensor, slide: torch.Tensor, sel: torch.Tensor, step: float) -> None:
+    """Sliding guides of rows ``sel`` advance ``step`` metres along the surface, re-projected with the SDF; their
+    directions stay tangent (``obj``, ``slide`` (N, H, F, 3) object frame, in place)."""
+    moving = slide[sel].norm(dim=-1, keepdim=True) > 0
+    pnew = obj[sel] + step * slide[sel]
+    sd, grad = p.sdf.query_with_grad(pnew.reshape(1, -1, 3))
+    n = grad.reshape(pnew.shape) / grad.reshape(pnew.shape).norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    pnew = pnew - sd.reshape(pnew.shape[:-1])[..., None] * n
+    sdir = slide[sel] - (slide[sel] * n).sum(-1, keepdim=True) * n
+    sdir = sdir / sdir.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    obj[sel] = torch.where(moving, pnew, obj[sel])
+    slide[sel] = torch.where(moving, sdir, slide[sel])
+
+
+def _record_failures(out: WindowOutcome, sel: torch.Tensor, res, k: int) -> None:
+    """Rows of ``sel`` that failed frame k of their window: their cause, frame and the fingers (kinematic) or the
+    finger pair (finger-finger) to blame; they stop here."""
+    ok = res.feasible
+    bad = sel[~ok]
+    out.fail_cause[bad] = res.cause[~ok]
+    out.fail_k[bad] = k
+    for r in (~ok).nonzero().squeeze(-1).tolist():
+        gi = sel[r].item()
+        if res.cause[r] == CAUSE_KINEMATIC:
+            out.fail_fingers[gi] = res.kin_fail[r].flatten().nonzero().squeeze(-1).tolist()
+        elif res.cause[r] == CAUSE_FINGERS:
+            out.fail_fingers[gi] = res.pair[r].tolist()
+    out.alive[bad] = False
+
+
+def _record_frame(out: WindowOutcome, sel: torch.Tensor, res, act_k: torch.Tensor, c: Candidates) -> None:
+    """This frame's outputs for every candidate (rows not run stay unused) and the guides as they stand."""
+    N, H, F = c.active.shape
+    for key in KEEP:
+        full = getattr(res, key)
+        buf = torch.zeros((N,) + tuple(full.shape[1:]), dtype=full.dtype, device=full.device)
+        buf[sel] = full
+        out.frames[key].append(buf)
+    gl = torch.zeros(N, H, F, dtype=torch.bool, device=act_k.device)
+    gl[sel] = act_k
+    out.g_frames["guiding"].append(gl)
+    out.g_frames["guide_obj"].append(c.obj.clone())
+    out.g_frames["guide_link"].append(c.link.clone())
+    out.g_frames["guide_local"].append(c.local.clone())
 
 
 def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max_rows, on_call):
