@@ -345,7 +345,8 @@ def _progress(bar, args, max_nodes, seeds):
             who = f"seed {info['seed']} " if seeds else ""
             bar.update("reconstruct", f"{who}path {info['solution'] + 1}, {info['elapsed']:.0f} s")
         else:
-            bar.update(stage, f"{info['elapsed']:.0f} s")
+            who = f"seed {info['seed']}, " if seeds and "seed" in info else ""
+            bar.update(stage, f"{who}{info['elapsed']:.0f} s")
     return progress
 
 

@@ -383,9 +383,9 @@ def _start(scene: Scene, fits: tuple, seed: int, t_start: float, o: _Options, pr
     models it reuses), its pruned patch samples, and the callbacks that finish each path it finds."""
     report = _reporter(progress, t_start)
     gen = torch.Generator().manual_seed(seed)
-    report("prepare")
+    report("prepare", seed=seed)
     problem = build_problem(scene, gen, device=o.device, dtype=o.dtype, share=share)
-    report("prune")
+    report("prune", seed=seed)
     init = prune_patches(problem, gen, settings=o.node_settings)
     t_prep = time.perf_counter() - t_start
     settings = SearchSettings(epsilon=o.epsilon, trees=o.trees, candidates=o.candidates, strategy=o.strategy,

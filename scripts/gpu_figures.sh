@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# The GPU figures of BENCHMARKS.md ("On a GPU") in one run, for a machine lent with a GPU: the CUDA tests, the node-test
+# bench, and box-turn's seeds as one batched run, each writing its JSON and log under OUT (default ./gpu_figures).
+#
+#   bash scripts/gpu_figures.sh [OUT]
+#
+# Settings (environment): DEVICE (cuda), SEEDS (16: the batch's seeds 0..SEEDS-1), MAX_NODES (6000 per seed),
+# SOLUTIONS (3), ALONE (2: seeds also run one at a time on the device, for the identical-files check), NODE_BATCH
+# ("1024 16384 65536"), STEPS (tests nodes batch: the steps to run). Each step is bounded by STEP_TIMEOUT seconds
+# (540) and a failed or timed-out step does not stop the next; the script's exit status is the first failure's.
+# The one-job-at-a-time CPU rate the batch is compared with is BENCHMARKS.md's (the same command with --device cpu).
+set -uo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-gpu_figures}
+DEVICE=${DEVICE:-cuda}
+SEEDS=${SEEDS:-16}
+MAX_NODES=${MAX_NODES:-6000}
+SOLUTIONS=${SOLUTIONS:-3}
+ALONE=${ALONE:-2}
+NODE_BATCH=${NODE_BATCH:-1024 16384 65536}
+STEPS=${STEPS:-tests nodes batch}
+STEP_TIMEOUT=${STEP_TIMEOUT:-540}
+PY=${PYTHON:-python3}
+mkdir -p "$OUT"
+"$PY" - "$OUT/machine.json" <<'EOF'
+import json, platform, sys
+import torch
+info = {"python": platform.python_version(), "torch": torch.__version__, "cuda": torch.version.cuda,
+        "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+json.dump(info, open(sys.argv[1], "w"), indent=1)
+print("machine:", info)
+EOF
+status=0
+step() {   # step NAME COMMAND...: run one step with its log, remember the first failure
+  local name=$1
+  shift
+  echo "== $name: $*"
+  local t0=$SECONDS
+  timeout "$STEP_TIMEOUT" "$@" >"$OUT/$name.log" 2>&1
+  local rc=$?
+  echo "== $name: exit $rc in $((SECONDS - t0)) s (log: $OUT/$name.log)"
+  tail -n 15 "$OUT/$name.log"
+  if [ "$rc" -ne 0 ] && [ "$status" -eq 0 ]; then status=$rc; fi
+}
+for s in $STEPS; do
+  case $s in
+    tests) step tests "$PY" -m pytest -q -p no:cacheprovider tests/kernels tests/torchhand/test_multi_search.py \
+             tests/torchhand/test_step.py -k cuda ;;
+    nodes) # shellcheck disable=SC2086
+           step nodes "$PY" scripts/bench_synthesis.py nodes --device "$DEVICE" --batch $NODE_BATCH \
+             --json "$OUT/nodes.json" ;;
+    batch) step batch "$PY" scripts/bench_synthesis.py batch --device "$DEVICE" --scenes box-turn \
+             --batch-seeds "$SEEDS" --solutions "$SOLUTIONS" --max-nodes "$MAX_NODES" --alone "$ALONE" \
+             --json "$OUT/batch.json" ;;
+    *) echo "gpu_figures: unknown step '$s' (tests, nodes, batch)" >&2; exit 2 ;;
+  esac
+done
+exit "$status"
