@@ -71,3 +71,34 @@ def write_json(path: str, payload: dict) -> None:
     with open(tmp, "w") as fh:
         json.dump(payload, fh, indent=2)
     os.replace(tmp, path)
+
+
+def alternate(script: str, args: list[str], checkouts: list[str], alternations: int, env: dict | None = None) -> dict:
+    """A/B runs of ``script`` (its hidden ``--one`` mode, printing one JSON line last) for each checkout in turn,
+    ``alternations`` times, each in its own process with the checkout first on ``PYTHONPATH`` (and ``env`` added).
+    Returns {checkout (absolute): [the JSON of each alternation]}, in the order given."""
+    import subprocess
+    import sys
+
+    trees = [os.path.abspath(c) for c in checkouts]
+    runs = {t: [] for t in trees}
+    for _ in range(alternations):
+        for t in trees:
+            out = subprocess.run([sys.executable, os.path.abspath(script), *args, "--one"],
+                                 env=dict(os.environ, **(env or {}), PYTHONPATH=t), capture_output=True, text=True,
+                                 check=True, cwd=t)
+            runs[t].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    return runs
+
+
+def print_ratios(runs: dict, key: str, unit: str, label: str = "", extra=lambda r: "") -> None:
+    """Per checkout of :func:`alternate`'s ``runs``: ``key`` of every alternation, their median and its ratio to the
+    first checkout's, and ``extra(last run)``."""
+    trees = list(runs)
+    base = statistics.median(r[key] for r in runs[trees[0]])
+    for t in trees:
+        per = [r[key] for r in runs[t]]
+        m = statistics.median(per)
+        print(f"{label}{t}: {' / '.join(f'{x:.2f}' for x in per)} {unit}; median {m:.2f}, ratio {m / base:.2f}"
+              f"{extra(runs[t][-1])}")
+

@@ -23,8 +23,10 @@ import hashlib
 import json
 import os
 import statistics
-import subprocess
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import alternate, print_ratios  # noqa: E402
 
 
 def _problem(scene_name: str, seed: int):
@@ -105,21 +107,10 @@ def main(argv=None) -> int:
     if a.one:
         print(json.dumps(one(a.paths)))
         return 0
-    trees = [os.path.abspath(c) for c in (a.checkouts or ["."])]
-    runs = {t: [] for t in trees}
-    for _ in range(a.alternations):
-        for t in trees:
-            env = dict(os.environ, PYTHONPATH=t, OMP_NUM_THREADS="1")
-            out = subprocess.run([sys.executable, os.path.abspath(__file__), os.path.abspath(a.paths), "--one"],
-                                 env=env, capture_output=True, text=True, check=True, cwd=t)
-            runs[t].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    runs = alternate(__file__, [os.path.abspath(a.paths)], a.checkouts or ["."], a.alternations,
+                     env={"OMP_NUM_THREADS": "1"})
     for stage, unit in (("finish", "s per path"), ("prune", "s per pruning")):
-        base = statistics.median(r[f"{stage}_s"] for r in runs[trees[0]])
-        for t in trees:
-            per = [r[f"{stage}_s"] for r in runs[t]]
-            m = statistics.median(per)
-            print(f"{stage} {t}: {' / '.join(f'{x:.2f}' for x in per)} {unit}; median {m:.2f}, ratio {m / base:.2f}; "
-                  f"digest {runs[t][-1][f'{stage}_digest']}")
+        print_ratios(runs, f"{stage}_s", unit, f"{stage} ", lambda r: f"; digest {r[stage + '_digest']}")
     return 0
 
 

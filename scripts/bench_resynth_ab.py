@@ -18,8 +18,10 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import alternate, print_ratios  # noqa: E402
 
 
 def one(inferred: str, dt: float) -> dict:
@@ -67,20 +69,8 @@ def main(argv=None) -> int:
     if a.one:
         print(json.dumps(one(a.inferred, dt)))
         return 0
-    trees = [os.path.abspath(c) for c in (a.checkouts or ["."])]
-    runs = {t: [] for t in trees}
-    for _ in range(a.alternations):
-        for t in trees:
-            env = dict(os.environ, PYTHONPATH=t)
-            out = subprocess.run([sys.executable, os.path.abspath(__file__), a.inferred, "--one", "--dt", a.dt],
-                                 env=env, capture_output=True, text=True, check=True, cwd=t)
-            runs[t].append(json.loads(out.stdout.strip().splitlines()[-1]))
-    base = statistics.median(r["median_ms"] for r in runs[trees[0]])
-    for t in trees:
-        meds = [r["median_ms"] for r in runs[t]]
-        m = statistics.median(meds)
-        print(f"{t}: {' / '.join(f'{x:.2f}' for x in meds)} ms; median {m:.2f} ms, ratio {m / base:.2f}; "
-              f"sum |q| {runs[t][-1]['q_abs_sum']:.12f}")
+    runs = alternate(__file__, [a.inferred, "--dt", a.dt], a.checkouts or ["."], a.alternations)
+    print_ratios(runs, "median_ms", "ms", extra=lambda r: f"; sum |q| {r['q_abs_sum']:.12f}")
     return 0
 
 

@@ -350,13 +350,6 @@ def _progress(bar, args, max_nodes, seeds):
     return progress
 
 
-def _rate(result) -> str:
-    """Node tests per second of search: the run's, or for a seed of a batch the batch's (its searches share calls)."""
-    t = result.timings
-    rate = t.get("batch_nodes", result.stats.nodes_tested) / max(t["search_s"], 1e-9)
-    return f"{rate:.0f}/s" + (f" in a batch of {t['batched']}" if "batched" in t else "")
-
-
 def _write(writer, result, started: bool, prepared, swap, offset, threads, args, max_nodes) -> int:
     """Complete one result directory (stats.json with the run's records) and print its summary; returns the
     number of solutions written."""
@@ -384,8 +377,9 @@ def _write(writer, result, started: bool, prepared, swap, offset, threads, args,
     ex = result.excluded
     unsmoothed = sum(not f.reconstructed for f in result.finals)
     who = f" (seed {result.seed})" if args.seeds else ""
+    batch = f" in a batch of {result.timings['batched']}" if "batched" in result.timings else ""   # the batch's rate
     print(f"{scene.name}{who}: {n} solution(s) in {result.timings['total_s']:.1f} s; {st.nodes_tested} node tests "
-          f"({_rate(result)}, stopped by {st.stopped_by}), "
+          f"({stats['nodes_per_second']:.0f}/s{batch}, stopped by {st.stopped_by}), "
           f"{st.dead_ends} dead ends (kinematic {st.rejections['kinematic']}, finger-finger "
           f"{st.rejections['finger_finger']}, dynamic {st.rejections['dynamic']}); {st.paths_found} path(s) found, "
           f"not written: {ex.failed_check} failed the final check, {ex.unsmoothed} could not be smoothed, "

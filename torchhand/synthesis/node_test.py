@@ -76,8 +76,8 @@ from .exact import mesh_normals
 from .problem import SynthesisProblem
 
 __all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "kinematic_verdicts", "evaluate_poses",
-           "pad_points",
-           "contact_slots", "table_depth", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS", "CAUSE_DYNAMIC"]
+           "pad_points", "contact_slots", "table_depth", "CAUSE_NONE", "CAUSE_KINEMATIC", "CAUSE_FINGERS",
+           "CAUSE_DYNAMIC"]
 
 
 def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
