@@ -30,6 +30,8 @@ from torchhand.check.penetration import finger_depth, finger_pairs, object_depth
 from torchhand.cli import main as cli
 from torchhand.errors import FileFormatError, MissingFileError, UnknownNameError
 
+from tests.conftest import shared_path
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -577,3 +579,52 @@ def test_a_table_force_off_the_table_is_flagged(clean_dir, tmp_path):
     fig = check_result(root).solutions[0].figures["table_contact_m"]
     assert not fig.ok and fig.value == pytest.approx(0.005, abs=1e-6)
     assert (fig.frame, fig.where) == (t, f"table contact {e}")
+
+
+@pytest.mark.parametrize("name", ["fandisk.obj", "sphere.ply", "bunny.ply", "teapot.stl"])
+def test_crossing_test_on_real_meshes(name):
+    """Inside/outside by rays both ways (``check.crossing``) on real meshes from ../shared/data, for points spread
+    over the bounding box and points within about 1 mm of the surface (farther than 1e-6 m from it). On the closed
+    ones (fandisk, sphere) it is the exact generalized winding number's verdict at every point. On the open ones
+    (the bunny's and the teapot's holes) the rays' verdict is trimesh's ray test (the same direction) wherever
+    trimesh's two rays agree; where trimesh differs (it retries a random direction when its rays disagree) ours is
+    the winding number's. Deterministic."""
+    from torchhand.check.crossing import CrossingTest, winding_number
+
+    mesh = trimesh.load(shared_path("meshes", "trimesh", name), force="mesh")
+    gen = np.random.default_rng(2)
+    lo, hi = mesh.bounds
+    pts = lo - 0.1 * (hi - lo) + gen.random((600, 3)) * 1.2 * (hi - lo)
+    surface, _ = trimesh.sample.sample_surface(mesh, 400, seed=3)
+    pts = np.concatenate([pts, surface + gen.normal(scale=0.005 * mesh.scale, size=surface.shape)])
+    pts = pts[np.abs(trimesh.proximity.closest_point(mesh, pts)[1]) > 1e-6]
+    test = CrossingTest(mesh.triangles.view(np.ndarray))
+    ours = test.contains(pts)
+    assert np.array_equal(ours, test.contains(pts))                          # deterministic
+    wn = winding_number(mesh.triangles.view(np.ndarray), pts) > 0.5
+    if mesh.is_watertight:
+        assert np.array_equal(ours, wn), np.nonzero(ours != wn)[0][:10]
+    else:
+        other = np.nonzero(ours != mesh.ray.contains_points(pts))[0]
+        assert np.array_equal(ours[other], wn[other]), other[ours[other] != wn[other]]
+    assert 50 <= int(wn.sum()) <= len(pts) - 50
+
+
+def test_closest_on_a_scan_is_the_nearest_of_every_triangle():
+    """ObjectMesh.closest on the bunny scan (16301 triangles; its candidates come from the centroids' k-d tree) for
+    points near the surface and up to 10 cm away: the distance equals the minimum over every triangle (trimesh's
+    point-triangle distance) to 1e-15 m, on a triangle at that distance."""
+    from trimesh.triangles import closest_point as triangle_closest_point
+
+    mesh = trimesh.load(shared_path("meshes", "trimesh", "bunny.ply"), force="mesh")
+    obj = object_mesh(mesh, 1.0)
+    gen = np.random.default_rng(4)
+    surface, _ = trimesh.sample.sample_surface(mesh, 150, seed=5)
+    pts = np.concatenate([surface + gen.normal(scale=2e-3, size=surface.shape),
+                          mesh.bounds.mean(0) + gen.normal(scale=0.1, size=(50, 3))])
+    _, dist, tri = obj.closest(pts)
+    tris = mesh.triangles.view(np.ndarray)
+    for i, p in enumerate(pts):
+        d = np.linalg.norm(triangle_closest_point(tris, np.repeat(p[None], len(tris), 0)) - p, axis=-1)
+        assert dist[i] == pytest.approx(d.min(), abs=1e-15)
+        assert d[tri[i]] == d.min()

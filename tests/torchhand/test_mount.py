@@ -349,3 +349,50 @@ def test_sidecar_shift_moves_the_hand_on_the_track(tmp_path):
     (tmp_path / "allegro.torchhand.toml").write_text("[mount]\nshift = [0.01]\n")
     with pytest.raises(torchhand.errors.InputValueError, match="mount.shift"):
         track_hand(track)
+
+
+def test_geom_depths_skip_only_what_cannot_reach_the_object(allegro_cube):
+    """``geom_depths`` skips the balls of geom points that lie wholly outside the object and measures the rest in
+    one query; against the same measure without skipping (the checker's exact signed distance of every surface
+    point of every geom in the object's box, and trimesh's signed distance of the object vertices in each geom's
+    box), per frame and link, equal to 1e-12. The object: the featuretype part (closed, concave, 3476 triangles)
+    scaled to 12 cm and turned about the cube's pose, so that some links reach into it (0.7 and 10 mm) and the rest
+    do not."""
+    pytest.importorskip("mujoco")
+    import trimesh
+
+    from torchhand.check.geometry import object_mesh
+    from torchhand.check.mjcf_geometry import _PosedGeoms, geom_depths
+    from torchhand.io.result import load_result
+
+    res = load_result(allegro_cube)
+    hand, sol, xml = res.hand_models["right"], res.solution(0), allegro_cube / "hand.xml"
+    mesh = trimesh.load(shared_path("meshes", "trimesh", "featuretype.STL"), force="mesh")
+    mesh.apply_translation(-mesh.bounds.mean(axis=0))
+    mesh.apply_scale(0.12 / mesh.extents.max())
+    obj = object_mesh(mesh, 0.1)
+    frames = [0, 10, 19]
+    q, root = sol.hands[0].q[frames], sol.hands[0].root_pose[frames]
+    pose = sol.object_pose[frames] @ trimesh.transformations.rotation_matrix(0.6, (1.0, 0.3, 0.2))
+    ours, _ = geom_depths(xml, hand, q, root, obj, pose, None)
+
+    posed = _PosedGeoms.load(xml, hand, 0.002)
+    ref = np.full_like(ours, np.nan)
+    for k in range(len(frames)):
+        posed.pose(q[k], root[k])
+        inv = np.linalg.inv(pose[k])
+        verts = mesh.vertices @ pose[k, :3, :3].T + pose[k, :3, 3]
+        for g, link, pts, tm in posed.geoms:
+            R, p = posed.data.geom_xmat[g].reshape(3, 3), posed.data.geom_xpos[g]
+            local = (pts @ R.T + p) @ inv[:3, :3].T + inv[:3, 3]
+            local = local[np.all((local >= mesh.bounds[0]) & (local <= mesh.bounds[1]), axis=1)]   # others: outside
+            depth = max(float(obj.signed_distance(local).max()), 0.0) if len(local) else 0.0
+            in_geom = (verts - p) @ R
+            in_box = np.all((in_geom >= tm.bounds[0]) & (in_geom <= tm.bounds[1]), axis=1)   # outside: outside it
+            if in_box.any():
+                depth = max(depth, float(trimesh.proximity.signed_distance(tm, in_geom[in_box]).max()))
+            ref[k, link] = np.fmax(ref[k, link], depth)
+    assert np.array_equal(np.isnan(ours), np.isnan(ref))
+    np.testing.assert_allclose(ours[~np.isnan(ours)], ref[~np.isnan(ref)], rtol=0, atol=1e-12)
+    inside = ref[~np.isnan(ref)] > 1e-4
+    assert 3 <= inside.sum() < inside.size, inside.sum()      # some links reach in, others do not

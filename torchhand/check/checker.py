@@ -53,7 +53,7 @@ def check_result(directory, *, limits=None, progress: Callable[[str], None] | No
         notes += odd
     if not obj.watertight:
         notes.append("the object's mesh is not watertight: mass properties from its convex hull, inside/outside "
-                     "from trimesh's ray test")
+                     "from rays both ways, the winding number where they disagree")
     checks: list[SolutionCheck] = []
     earlier: list[tuple[int, np.ndarray]] = []
     n = len(result.solution_files)
@@ -171,7 +171,7 @@ def _link_depths(sol: Solution, scene, h: PosedHand, obj: ObjectMesh, xml: Path 
     if xml is not None and capsule_notes(h.model, h.side):
         from .mjcf_geometry import geom_depths
 
-        got = geom_depths(xml, h.model, h.q, sol.hand(h.side).root_pose, obj.mesh, sol.object_pose, table)
+        got = geom_depths(xml, h.model, h.q, sol.hand(h.side).root_pose, obj, sol.object_pose, table)
         if got is not None:
             return got
     if table is env:

@@ -8,12 +8,15 @@ every function here says which sign it returns.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as triangle_closest_point
+
+from .crossing import CrossingTest, winding_number
 
 __all__ = [
     "rigid_inverse",
@@ -101,7 +104,8 @@ class ObjectMesh:
     com: centre of mass, (3,), metres; inertia: about ``com``, object-frame axes, (3, 3), kg m^2
     extent: largest side of the axis-aligned bounding box, metres
     watertight: whether the mesh (vertices merged) is closed and consistently wound; when it is not, mass
-        properties come from its convex hull and inside/outside from trimesh's ray test on the open mesh
+        properties come from its convex hull and inside/outside from the ray test of :mod:`.crossing` on the
+        open mesh (the winding number where its two rays disagree)
     """
 
     mesh: trimesh.Trimesh
@@ -112,6 +116,8 @@ class ObjectMesh:
     extent: float
     watertight: bool
     _centre_tree: cKDTree = field(repr=False)
+    _crossing: CrossingTest = field(repr=False)
+    _tri_radius: float = field(repr=False)          # the largest distance of a triangle's vertex from its centroid
 
     def hull_distance_bound(self, points: np.ndarray) -> np.ndarray:
         """A lower bound on the distance of points outside the convex hull to the mesh (<= 0 inside the hull).
@@ -128,8 +134,8 @@ class ObjectMesh:
 
         points: (N, 3), object frame, metres. The distance is :meth:`closest`'s. The sign: where the closest
         point lies inside its triangle (farther than 1e-9 m from its edges) the side of that triangle's plane,
-        which is exact for a closed outward-wound mesh; elsewhere (closest point on an edge or a vertex) trimesh's
-        ray test ``mesh.ray.contains_points``, as in ``trimesh.proximity.signed_distance``.
+        which is exact for a closed outward-wound mesh; elsewhere (closest point on an edge or a vertex) the ray
+        test of :mod:`.crossing` (trimesh's rule and direction, as in ``trimesh.proximity.signed_distance``).
         """
         return self.signed_closest(points)[0]
 
@@ -150,14 +156,14 @@ class ObjectMesh:
         sign = np.where(side < 0, 1.0, -1.0)
         ask = ~interior & (dist > trimesh.tol.merge)
         if ask.any():
-            sign[ask] = np.where(self.mesh.ray.contains_points(points[ask]), 1.0, -1.0)
+            sign[ask] = np.where(self._crossing.contains(points[ask]), 1.0, -1.0)
         # a point called inside by its nearest face's plane is confirmed by the ray test; where the two disagree
         # (a mesh defect: a flipped or self-intersecting face, as on a real scan), the exact generalized winding
         # number decides (> 1/2 inside)
         claim = interior & (sign > 0) & (dist > trimesh.tol.merge)
         if claim.any():
             idx = np.nonzero(claim)[0]
-            ray = self.mesh.ray.contains_points(points[idx])
+            ray = self._crossing.contains(points[idx])
             doubt = idx[~ray]
             if len(doubt):
                 sign[doubt] = np.where(winding_number(self.mesh.triangles.view(np.ndarray), points[doubt]) > 0.5,
@@ -169,7 +175,9 @@ class ObjectMesh:
 
         Point-triangle distances are trimesh's (``trimesh.triangles.closest_point``). Candidates: the distance
         ``u`` to the triangles of the 8 nearest centroids bounds the answer from above, and only triangles whose
-        bounding box meets the box of half-size ``u`` about the point can hold a closer point. A small query (at most
+        bounding box meets the box of half-size ``u`` about the point can hold a closer point; they are looked up
+        among the triangles whose centroid lies within ``u`` plus the largest triangle's radius of the point (the
+        centroids' k-d tree), or, where that ball holds more than ``chunk`` pairs, among all. A small query (at most
         ``BRUTE_PAIRS`` (point, triangle) pairs: a box's 12 triangles and a few hundred points) is searched whole:
         one call over every pair costs less than the bound and its filter. Either way the nearest triangle wins,
         the lowest index among equals.
@@ -189,6 +197,17 @@ class ObjectMesh:
         c = triangle_closest_point(tris[near.reshape(-1)], points[owner])
         u = np.linalg.norm(c - points[owner], axis=-1).reshape(N, k).min(axis=1) + 1e-12
         lo, hi = tris.min(axis=1), tris.max(axis=1)
+        reach = u + self._tri_radius
+        counts = np.asarray(self._centre_tree.query_ball_point(points, reach, return_length=True), dtype=np.int64)
+        if counts.sum() <= chunk:
+            lists = self._centre_tree.query_ball_point(points, reach)
+            owner = np.repeat(np.arange(N), counts)
+            face = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(counts.sum()))
+            r = u[owner, None]
+            keep = np.all((lo[face] <= points[owner] + r) & (hi[face] >= points[owner] - r), axis=-1)
+            owner, face = owner[keep], face[keep]
+            order = np.lexsort((face, owner))                     # by point, then triangle
+            return _nearest(tris, points, owner[order], face[order])
         owners, faces = [], []
         step = max(1, chunk // F)
         for s in range(0, N, step):
@@ -251,21 +270,6 @@ def _nearest(tris: np.ndarray, points: np.ndarray, owner: np.ndarray, face: np.n
     return c[first], d[first], face[first].astype(np.int64)
 
 
-def winding_number(triangles: np.ndarray, points: np.ndarray, chunk: int = 64) -> np.ndarray:
-    """The generalized winding number (Jacobson et al. 2013) of a triangle soup at each point, exactly (the sum of
-    the triangles' signed solid angles / 4 pi, Van Oosterom & Strackee): 1 inside a closed outward-wound mesh, 0
-    outside, robust to a few defective faces. triangles (F, 3, 3), points (N, 3); returns (N,)."""
-    out = np.zeros(len(points))
-    for i in range(0, len(points), chunk):
-        v = triangles[None] - points[i:i + chunk, None, None]                # (n, F, 3, 3)
-        a, b, c = v[:, :, 0], v[:, :, 1], v[:, :, 2]
-        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
-        num = _dot(a, np.cross(b, c))
-        den = la * lb * lc + _dot(a, b) * lc + _dot(b, c) * la + _dot(c, a) * lb
-        out[i:i + chunk] = (2 * np.arctan2(num, den)).sum(-1) / (4 * np.pi)
-    return out
-
-
 def _distinct(normals: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     """Unit normals with duplicates (coplanar triangles of one face) removed, (m, 3)."""
     keep: list[np.ndarray] = []
@@ -296,4 +300,5 @@ def object_mesh(mesh: trimesh.Trimesh, mass: float) -> ObjectMesh:
     tris = mesh.triangles.view(np.ndarray)
     return ObjectMesh(mesh=mesh, hull_normals=normals, hull_offsets=offsets, com=com,
                       inertia=0.5 * (inertia + inertia.T), extent=float(np.max(mesh.extents)),
-                      watertight=watertight, _centre_tree=cKDTree(tris.mean(axis=1)))
+                      watertight=watertight, _centre_tree=cKDTree(tris.mean(axis=1)), _crossing=CrossingTest(tris),
+                      _tri_radius=float(np.linalg.norm(tris - tris.mean(axis=1, keepdims=True), axis=-1).max()))

@@ -8,8 +8,8 @@ triangle mesh in its own frame (MuJoCo's sizes; mesh geoms from MuJoCo's compile
 
 Depth of a link in the object (metres, the largest over the link's geoms and the frame):
     * points on each geom's surface (its vertices and an even sample ``spacing`` apart), their signed distance
-      into the object mesh (trimesh, positive inside; only the points inside the mesh's bounding box are asked),
-      and
+      into the object mesh (the checker's exact one, :meth:`.geometry.ObjectMesh.signed_distance`, positive inside;
+      geoms wholly outside skipped), and
     * the object's vertices inside each geom, their distance to the geom's surface,
 whichever is larger; 0 when nothing is inside. Exact where the deepest point is a geom or object vertex or a
 sample; an edge of one crossing a face of the other between samples is under-measured by at most about
@@ -30,12 +30,14 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from .geometry import ObjectMesh
+
 __all__ = ["geom_depths", "geom_finger_depths", "geom_contact_gaps"]
 
 _TYPES = {2: "sphere", 3: "capsule", 5: "cylinder", 6: "box", 7: "mesh"}     # mjtGeom values
 
 
-def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trimesh.Trimesh,
+def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj: ObjectMesh,
                 object_pose: np.ndarray, table_height: float | None, spacing: float = 0.002):
     """Per-link depths in the object and under the table from the MJCF geoms (module docstring).
 
@@ -43,12 +45,19 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
         xml_path: the result's hand file (``hand.xml``)
         model: the :class:`~torchhand.hand.HandModel` read from it (link and joint names)
         q: (T, D) radians, ``model.joint_names`` order; root: (T, 4, 4) the root poses
-        obj_mesh: the object mesh (object frame); object_pose: (T, 4, 4)
+        obj: the object (:class:`~.geometry.ObjectMesh`, object frame); object_pose: (T, 4, 4)
         table_height: z of the table, or None; or a scene's ``Environment`` with a table edge or a floor (the
             depth of the geom points in its solids, :mod:`.ground`)
     Returns:
         (object depth (T, L), table depth (T, L) or None), metres, NaN for links without geoms; or None when
         MuJoCo is not installed.
+
+    Balls that lie wholly outside the object are skipped: a ball outside the object's bounding box, or whose
+    centre is outside the object and farther from its surface than its radius. Each geom's surface points are
+    binned into balls of a few millimetres; only the points of the other balls get the object's exact signed
+    distance (:meth:`~.geometry.ObjectMesh.signed_distance`, the capsule hands' measure), all of a frame in one
+    query; the object's vertices are tested against a geom only when the ball about the geom's origin that holds
+    it (radius: its farthest vertex) is not clear.
     """
     posed = _PosedGeoms.load(xml_path, model, spacing)
     if posed is None:
@@ -56,27 +65,75 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj_mesh: trim
     T, L = q.shape[0], model.num_links
     obj_depth = np.full((T, L), np.nan)
     tab_depth = np.full((T, L), np.nan) if table_height is not None else None
-    verts = np.asarray(obj_mesh.vertices, dtype=np.float64)
+    verts = np.asarray(obj.mesh.vertices, dtype=np.float64)
+    ids = [g for g, _, _, _ in posed.geoms]
+    reach = np.array([np.linalg.norm(tm.vertices, axis=1).max() for _, _, _, tm in posed.geoms])
+    balls = [_balls(pts, _BALL) for _, _, pts, _ in posed.geoms]       # (centre (C, 3), radius (C,), label (P,))
+    radius = np.concatenate([reach] + [r for _, r, _ in balls])
     d = posed.data
     for t in range(T):
         posed.pose(q[t], root[t])
         inv = np.linalg.inv(object_pose[t])
+        R_all, p_all = d.geom_xmat[ids].reshape(-1, 3, 3), d.geom_xpos[ids]
+        to_obj = inv[:3, :3] @ R_all                                     # geom frame -> object frame, per geom
+        centres = [c @ to_obj[k].T + (p_all[k] @ inv[:3, :3].T + inv[:3, 3]) for k, (c, _, _) in enumerate(balls)]
+        clear = _clear(obj, np.concatenate([p_all @ inv[:3, :3].T + inv[:3, 3]] + centres), radius)
+        geom_clear, ball_clear = clear[:len(ids)], np.split(clear[len(ids):], np.cumsum([len(c) for c in centres]))
         world_verts = verts @ object_pose[t, :3, :3].T + object_pose[t, :3, 3]
-        for g, link, pts, tm in posed.geoms:
-            R, p = d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g]
+        near_points, owner = [], []
+        for k, (g, link, pts, tm) in enumerate(posed.geoms):
+            R, p = R_all[k], p_all[k]
             world = pts @ R.T + p
-            local = world @ inv[:3, :3].T + inv[:3, 3]
-            depth = max(_depth_into(obj_mesh, local), 0.0)
-            # object vertices inside the geom (a box corner pressing into a palm plate)
-            in_geom = (world_verts - p) @ R
-            near = np.linalg.norm(in_geom, axis=1) <= np.linalg.norm(tm.vertices, axis=1).max()
-            if near.any():
-                depth = max(depth, float(trimesh.proximity.signed_distance(tm, in_geom[near]).max()))
-            obj_depth[t, link] = np.fmax(obj_depth[t, link], depth)
+            obj_depth[t, link] = np.fmax(obj_depth[t, link], 0.0)
             if tab_depth is not None:
                 tab_depth[t, link] = np.fmax(tab_depth[t, link], _table_depth(table_height, world))
+            keep = ~ball_clear[k][balls[k][2]]
+            if keep.any():
+                near_points.append(world[keep] @ inv[:3, :3].T + inv[:3, 3])
+                owner.append(np.full(int(keep.sum()), link))
+            if geom_clear[k]:
+                continue
+            # object vertices inside the geom (a box corner pressing into a palm plate)
+            in_geom = (world_verts - p) @ R
+            near = np.linalg.norm(in_geom, axis=1) <= reach[k]
+            if near.any():
+                depth = float(trimesh.proximity.signed_distance(tm, in_geom[near]).max())
+                obj_depth[t, link] = np.fmax(obj_depth[t, link], depth)
+        if near_points:
+            sd = np.maximum(obj.signed_distance(np.concatenate(near_points)), 0.0)
+            np.maximum.at(obj_depth[t], np.concatenate(owner), sd)
     return obj_depth, tab_depth
 
+
+_BALL = 0.004
+"""Side of the cells (metres) that bin a geom's surface points into balls for :func:`geom_depths`."""
+
+
+def _balls(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points (P, 3) binned into cubic cells of side ``cell``: each cell's ball (the centroid of its points and the
+    distance to the farthest), (C, 3) and (C,), and each point's cell, (P,) long."""
+    _, label = np.unique(np.floor(points / cell).astype(np.int64), axis=0, return_inverse=True)
+    label = label.reshape(-1)
+    C = int(label.max()) + 1 if len(label) else 0
+    centre = np.zeros((C, 3))
+    np.add.at(centre, label, points)
+    centre /= np.bincount(label, minlength=C)[:, None]
+    radius = np.zeros(C)
+    np.maximum.at(radius, label, np.linalg.norm(points - centre[label], axis=1))
+    return centre, radius, label
+
+
+def _clear(obj: ObjectMesh, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Which balls (centre (N, 3), object frame; radius (N,)) lie wholly outside the object: outside its bounding
+    box by more than the radius, or with the centre outside the object and farther than the radius from its
+    surface. (N,) bool."""
+    lo, hi = obj.mesh.bounds
+    box = np.linalg.norm(np.maximum(lo - centre, 0.0) + np.maximum(centre - hi, 0.0), axis=1)
+    clear = box > radius
+    ask = ~clear
+    if ask.any():
+        clear[ask] = -obj.signed_distance(centre[ask]) > radius[ask]
+    return clear
 
 
 class _PosedGeoms:
