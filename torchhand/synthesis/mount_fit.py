@@ -205,12 +205,17 @@ def pad_workspace(hand, generator: torch.Generator, samples: int = 16384) -> lis
     return out
 
 
-def _pad_reach(local: torch.Tensor, inward: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
-    """Whether surface points (…, 3) with inward normals (…, 3), model hand frame, are touched by a pad facing
-    them: their (voxel, nearest direction bin) is in ``codes``. (…,) bool."""
-    c = _code(torch.floor(local / _VOXEL).long()) * 32 + (inward @ _BINS.T).argmax(-1)
-    pos = torch.searchsorted(codes, c.reshape(-1)).clamp_max(codes.numel() - 1)
-    return (codes[pos] == c.reshape(-1)).reshape(c.shape)
+def _pad_reach(cell: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+    """Whether surface points are touched by a pad facing them: their (voxel, nearest direction bin) code ``cell``
+    (…,) long (:func:`_cells`) is in ``codes``. (…,) bool."""
+    pos = torch.searchsorted(codes, cell.reshape(-1)).clamp_max(codes.numel() - 1)
+    return (codes[pos] == cell.reshape(-1)).reshape(cell.shape)
+
+
+def _cells(local: torch.Tensor, inward: torch.Tensor) -> torch.Tensor:
+    """The (voxel, nearest direction bin) code of surface points (…, 3) with inward normals (…, 3), model hand
+    frame, as :func:`_pad_reach` looks them up. (…,) long."""
+    return _code(torch.floor(local / _VOXEL).long()) * 32 + (inward @ _BINS.T).argmax(-1)
 
 
 def _transforms(cands: np.ndarray) -> torch.Tensor:
@@ -222,7 +227,8 @@ def _areas(ctx: _Ctx, cands: np.ndarray) -> torch.Tensor:
     M_inv = torch.linalg.inv(_transforms(cands))  # model hand frame <- track hand frame
     local = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.pts) + M_inv[:, None, None, :3, 3]
     inward = torch.einsum("cij,ksj->cksi", M_inv[:, :3, :3], ctx.inward)
-    return torch.stack([_pad_reach(local, inward, c).double().mean(2) for c in ctx.codes], -1)
+    cell = _cells(local, inward)                                  # the same for every finger
+    return torch.stack([_pad_reach(cell, c).double().mean(2) for c in ctx.codes], -1)
 
 
 def _score(ctx: _Ctx, cands: np.ndarray, cap: float | None = None) -> np.ndarray:
