@@ -9,7 +9,7 @@ triangle mesh in its own frame (MuJoCo's sizes; mesh geoms from MuJoCo's compile
 Depth of a link in the object (metres, the largest over the link's geoms and the frame):
     * points on each geom's surface (its vertices and an even sample ``spacing`` apart), their signed distance
       into the object mesh (the checker's exact one, :meth:`.geometry.ObjectMesh.signed_distance`, positive inside;
-      geoms wholly outside skipped), and
+      points that cannot reach the object skipped, see :func:`geom_depths`), and
     * the object's vertices inside each geom, their distance to the geom's surface,
 whichever is larger; 0 when nothing is inside. Exact where the deepest point is a geom or object vertex or a
 sample; an edge of one crossing a face of the other between samples is under-measured by at most about
@@ -76,8 +76,9 @@ def geom_depths(xml_path, model, q: np.ndarray, root: np.ndarray, obj: ObjectMes
         inv = np.linalg.inv(object_pose[t])
         R_all, p_all = d.geom_xmat[ids].reshape(-1, 3, 3), d.geom_xpos[ids]
         to_obj = inv[:3, :3] @ R_all                                     # geom frame -> object frame, per geom
-        centres = [c @ to_obj[k].T + (p_all[k] @ inv[:3, :3].T + inv[:3, 3]) for k, (c, _, _) in enumerate(balls)]
-        clear = _clear(obj, np.concatenate([p_all @ inv[:3, :3].T + inv[:3, 3]] + centres), radius)
+        origin = p_all @ inv[:3, :3].T + inv[:3, 3]                      # the geoms' origins, object frame
+        centres = [c @ to_obj[k].T + origin[k] for k, (c, _, _) in enumerate(balls)]
+        clear = _clear(obj, np.concatenate([origin] + centres), radius)
         geom_clear, ball_clear = clear[:len(ids)], np.split(clear[len(ids):], np.cumsum([len(c) for c in centres]))
         world_verts = verts @ object_pose[t, :3, :3].T + object_pose[t, :3, 3]
         near_points, owner = [], []
