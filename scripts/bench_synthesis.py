@@ -24,6 +24,13 @@ hour, whether each seed's files are identical to its alone run's, and the checks
 
 ``hands``: each robot hand of the shared data (no sidecar; the mount fitted, docs/hand_model.md) on ``cube-turn``
 (``--hand-scenes``), the same columns and checks, with the fitted mount.
+
+``fill``: the windows of a real capture (ManipNet mug1's ``--fill-frames``, ``--fill-window``, ``--max-nodes`` per
+window, ``--stall-nodes``, ``--solutions`` variants) searched together as ``torchhand fill`` does with one process,
+against each window alone, in the same process: the ratio of the times and whether every window's run is its
+alone run.
+
+    python scripts/bench_synthesis.py fill --fill-frames 290:420 --max-nodes 900 --stall-nodes 300 --solutions 2
 """
 
 from __future__ import annotations
@@ -250,9 +257,70 @@ def bench_batch(scene: str = "box-turn", seeds=tuple(range(16)), solutions: int 
     return row
 
 
+def bench_fill(frames: str = "290:420", window: int = 30, overlap: int = 5, max_nodes: int = 900,
+               stall_nodes: int = 300, variants: int = 2, device: str = "cpu",
+               capture: str | None = None) -> dict:
+    """The windows of a capture (ManipNet mug1's ``frames``, right hand) searched together
+    (:func:`torchhand.fill.run.search_windows` with one process) against each window alone, one after another, in
+    the same process: wall times, whether every window's run (pieces, motions, node tests) is the alone one, and the
+    scheduler's calls. capture: a ManipNet capture directory (default the shared data's mug1)."""
+    from pathlib import Path
+
+    from torchhand.fill.run import FillSettings, clip_phases, plan_fill, run_window, search_windows
+    from torchhand.scene.mocap import manipnet_scene
+    import torchhand.synthesis.multi as multi
+
+    data = os.environ.get("TORCHHAND_SHARED_DATA", os.path.join(HERE, "..", "..", "shared", "data"))
+    capture = capture or os.path.join(data, "mocap", "manipnet", "mug1")
+    a, b = (int(x) for x in frames.split(":"))
+    scene = manipnet_scene(Path(capture), fps=30.0, hands=("right",)).with_frames(a, b)
+    settings = FillSettings(variants=variants, window=window, overlap=overlap, max_nodes=max_nodes,
+                            stall_nodes=stall_nodes, device=device)
+    plan = plan_fill(scene, settings)
+    calls = []
+    real = multi.search_lanes
+
+    def counted(*args, **kw):
+        ms = multi.MultiStats()
+        calls.append(ms)
+        return real(*args, **dict(kw, stats=ms))
+
+    multi.search_lanes = counted
+    try:
+        t0 = time.perf_counter()
+        together = search_windows(plan.prepared.scene, plan.windows, plan.settings, None, plan.phases)
+        together_s = time.perf_counter() - t0
+    finally:
+        multi.search_lanes = real
+    ms = calls[0]
+    alone_s, same = [], []
+    for w, run in zip(plan.windows, together):
+        t0 = time.perf_counter()
+        alone = run_window(plan.prepared.scene, w, plan.settings, clip_phases(plan.phases, w.start, w.stop) or None)
+        alone_s.append(time.perf_counter() - t0)
+        same.append(_window_digest(alone) == _window_digest(run) and alone.nodes == run.nodes)
+    return {"frames": frames, "device": device, "windows": len(plan.windows), "max_nodes": max_nodes,
+            "node_tests": sum(r.nodes for r in together), "statuses": " ".join(r.status for r in together),
+            "together_s": together_s, "alone_sum_s": sum(alone_s), "together_over_alone": together_s / sum(alone_s),
+            "identical": f"{sum(same)}/{len(same)}", "calls": ms.calls,
+            "mean_batch": sum(ms.batch_sizes) / max(ms.calls, 1), "max_batch": max(ms.batch_sizes, default=0)}
+
+
+def _window_digest(run) -> str:
+    """A window run's pieces (frames, kind, motions) as one hash."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in run.pieces:
+        h.update(f"{p.start},{p.stop},{p.kind}".encode())
+        for q in p.qs:
+            h.update(q.numpy().tobytes())
+    return h.hexdigest()
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("suite", choices=["nodes", "scenes", "hands", "batch", "all"])
+    p.add_argument("suite", choices=["nodes", "scenes", "hands", "batch", "fill", "all"])
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--batch", type=int, nargs="+", default=[64, 256, 1024])
@@ -274,6 +342,11 @@ def main(argv=None) -> int:
                    help="batch: K seeds 0..K-1 of --scenes' first scene in one batch, one row per K (default 16)")
     p.add_argument("--alone", type=int, default=None,
                    help="batch: run only the first N seeds alone for the comparison (default: all)")
+    p.add_argument("--fill-frames", default="290:420",
+                   help="fill: the frames of ManipNet mug1 whose windows are searched (default 290:420)")
+    p.add_argument("--fill-window", type=int, nargs=2, default=[30, 5], metavar=("WINDOW", "OVERLAP"),
+                   help="fill: window and overlap, frames (default 30 5)")
+    p.add_argument("--stall-nodes", type=int, default=300, help="fill: stall rule in node tests (default 300)")
     p.add_argument("--json", help="write the results here (atomically)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -305,6 +378,12 @@ def main(argv=None) -> int:
         print("\n[many seeds in one batch against the same seeds one at a time]")
         print_table(rows, list(rows[0].keys()))
         out["batch"] = rows
+    if a.suite == "fill":
+        rows = [bench_fill(a.fill_frames, a.fill_window[0], a.fill_window[1], a.max_nodes, a.stall_nodes,
+                           a.solutions, a.device)]
+        print("\n[a capture's windows together against each window alone]")
+        print_table(rows, list(rows[0].keys()))
+        out["fill"] = rows
     if a.json:
         write_json(a.json, out)
         print(f"wrote {a.json}")

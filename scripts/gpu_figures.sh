@@ -6,7 +6,8 @@
 #
 # Settings (environment): DEVICE (cuda), SEEDS (16: the batch's seeds 0..SEEDS-1), MAX_NODES (6000 per seed),
 # SOLUTIONS (3), ALONE (2: seeds also run one at a time on the device, for the identical-files check), NODE_BATCH
-# ("1024 16384 65536"), STEPS (tests nodes batch: the steps to run). Each step is bounded by STEP_TIMEOUT seconds
+# ("1024 16384 65536"), FILL_FRAMES (mug1's frames for the fill step, 290:420), STEPS (tests nodes batch fill: the steps
+# to run). Each step is bounded by STEP_TIMEOUT seconds
 # (540) and a failed or timed-out step does not stop the next; the script's exit status is the first failure's.
 # The one-job-at-a-time CPU rate the batch is compared with is BENCHMARKS.md's (the same command with --device cpu).
 set -uo pipefail
@@ -18,7 +19,8 @@ MAX_NODES=${MAX_NODES:-6000}
 SOLUTIONS=${SOLUTIONS:-3}
 ALONE=${ALONE:-2}
 NODE_BATCH=${NODE_BATCH:-1024 16384 65536}
-STEPS=${STEPS:-tests nodes batch}
+FILL_FRAMES=${FILL_FRAMES:-290:420}
+STEPS=${STEPS:-tests nodes batch fill}
 STEP_TIMEOUT=${STEP_TIMEOUT:-540}
 PY=${PYTHON:-python3}
 mkdir -p "$OUT"
@@ -45,14 +47,16 @@ step() {   # step NAME COMMAND...: run one step with its log, remember the first
 for s in $STEPS; do
   case $s in
     tests) step tests "$PY" -m pytest -q -p no:cacheprovider tests/kernels tests/torchhand/test_multi_search.py \
-             tests/torchhand/test_step.py -k cuda ;;
+             tests/torchhand/test_step.py tests/torchhand/test_fill_pieces.py -k cuda ;;
     nodes) # shellcheck disable=SC2086
            step nodes "$PY" scripts/bench_synthesis.py nodes --device "$DEVICE" --batch $NODE_BATCH \
              --json "$OUT/nodes.json" ;;
     batch) step batch "$PY" scripts/bench_synthesis.py batch --device "$DEVICE" --scenes box-turn \
              --batch-seeds "$SEEDS" --solutions "$SOLUTIONS" --max-nodes "$MAX_NODES" --alone "$ALONE" \
              --json "$OUT/batch.json" ;;
-    *) echo "gpu_figures: unknown step '$s' (tests, nodes, batch)" >&2; exit 2 ;;
+    fill) step fill "$PY" scripts/bench_synthesis.py fill --device "$DEVICE" --fill-frames "$FILL_FRAMES" \
+             --max-nodes "$MAX_NODES" --stall-nodes 2000 --solutions 2 --json "$OUT/fill.json" ;;
+    *) echo "gpu_figures: unknown step '$s' (tests, nodes, batch, fill)" >&2; exit 2 ;;
   esac
 done
 exit "$status"

@@ -268,6 +268,9 @@ def test_cli_bad_input_exits_2_before_any_work(tmp_path, capsys):
     assert not out.exists() or not any(out.iterdir())
     assert cli(["fill", "box-turn", "--out", str(out), "--slide-speed", "-1"]) == 2
     capsys.readouterr()
+    if not torch.cuda.is_available():
+        assert cli(["fill", "box-turn", "--out", str(out), "--device", "cuda"]) == 2
+        assert "no CUDA device" in capsys.readouterr().err and not out.exists()
     busy = tmp_path / "busy"
     busy.mkdir()
     (busy / "notes.txt").write_text("mine")

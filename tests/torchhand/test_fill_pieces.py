@@ -2,6 +2,7 @@
 
 from types import SimpleNamespace
 
+import pytest
 import torch
 
 from torchhand.fill.pieces import BACK, MIN_FRAMES, search_pieces
@@ -106,14 +107,14 @@ def test_a_window_that_raises_is_reported_and_the_others_are_kept(tmp_path, monk
     sys.path.insert(0, str(Path(__file__).parent))
     from test_fill import PHASES, _scene
 
-    real = run_mod.run_window
+    real = run_mod.window_lane
 
-    def flaky(scene, window, settings, phases=None):
+    def flaky(scene, window, settings, phases=None, shared=None):
         if window.index == 1:
             raise RuntimeError("boom in the second window")
-        return real(scene, window, settings, phases)
+        return (yield from real(scene, window, settings, phases, shared))
 
-    monkeypatch.setattr(run_mod, "run_window", flaky)
+    monkeypatch.setattr(run_mod, "window_lane", flaky)
     lines = []
     res = run_mod.fill_capture(_scene(), tmp_path / "o", phases=PHASES, variants=1, window=6, overlap=2,
                                max_nodes=300, seed=0, progress=lines.append)
@@ -127,9 +128,11 @@ def test_a_window_that_raises_is_reported_and_the_others_are_kept(tmp_path, monk
     assert (res.frame_status[0][only_1] == 2).all()
 
 
-def test_windows_in_worker_processes_give_the_same_result(tmp_path):
-    """--jobs 2 runs the windows in spawned processes (the scene pickled to them): the same motions and frame
-    status as one process, and the finishing step's exact-geometry queries work there."""
+def test_windows_in_worker_processes_give_the_same_result(tmp_path, monkeypatch):
+    """--jobs 2 runs each window alone in spawned processes (the scene pickled to them); one process runs the
+    windows' searches together, their frames stacked into shared node-test calls: the same motions, node tests
+    and frame status, and the finishing step's exact-geometry queries work in the workers."""
+    import torchhand.synthesis.multi as multi
     import sys
     from pathlib import Path
 
@@ -140,6 +143,9 @@ def test_windows_in_worker_processes_give_the_same_result(tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     from test_fill import PHASES, _scene
 
+    stacked = []
+    real = multi.stack_frames
+    monkeypatch.setattr(multi, "stack_frames", lambda problems: stacked.append(len(problems)) or real(problems))
     got = {}
     for jobs in (1, 2):
         res = fill_capture(_scene(), tmp_path / f"j{jobs}", phases=PHASES, variants=1, window=6, overlap=2,
@@ -148,6 +154,26 @@ def test_windows_in_worker_processes_give_the_same_result(tmp_path):
         got[jobs] = res
     np.testing.assert_array_equal(got[1].frame_status, got[2].frame_status)
     for a, b in zip(got[1].windows, got[2].windows):
+        assert a.nodes == b.nodes and all(torch.equal(x, y) for x, y in zip(a.qs, b.qs))
+    assert stacked and max(stacked) == 2           # the two windows' searches were tested together
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_windows_together_run_as_alone(tmp_path):
+    """On a CUDA device, the windows' searches tested together (one process) give each window the run it has
+    alone there (two worker processes, one window at a time)."""
+    import sys
+    from pathlib import Path
+
+    from torchhand.fill.run import fill_capture
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_fill import PHASES, _scene
+
+    got = [fill_capture(_scene(), tmp_path / f"j{jobs}", phases=PHASES, variants=1, window=6, overlap=2,
+                        max_nodes=1500, seed=0, jobs=jobs, device="cuda") for jobs in (1, 2)]
+    assert [r.status for r in got[0].windows] == ["solved", "solved"]
+    for a, b in zip(got[0].windows, got[1].windows):
         assert a.nodes == b.nodes and all(torch.equal(x, y) for x, y in zip(a.qs, b.qs))
 
 

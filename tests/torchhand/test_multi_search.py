@@ -17,8 +17,9 @@ import torch
 import torchhand
 from torchhand.cli import main as cli
 from torchhand.synthesis.initial import prune_patches
-from torchhand.synthesis.multi import MultiStats, SearchTask, node_context, search_many
-from torchhand.synthesis.node_test import Guides, run_node_test
+from torchhand.errors import ShapeError
+from torchhand.synthesis.multi import MultiStats, SearchTask, node_context, search_lanes, search_many, stack_frames
+from torchhand.synthesis.node_test import Guides, NodeTestSettings, run_node_test
 from torchhand.synthesis.problem import build_problem
 from torchhand.synthesis.search import SearchSettings, search
 
@@ -30,8 +31,13 @@ SOLUTION_FIELDS = ("q", "c_mask", "c_local", "c_point", "c_normal", "c_force", "
 
 
 @pytest.fixture(scope="module")
-def scene():
-    return torchhand.load_scene("box-turn").with_frames(0, 16)
+def base():
+    return torchhand.load_scene("box-turn")
+
+
+@pytest.fixture(scope="module")
+def scene(base):
+    return base.with_frames(0, 16)
 
 
 def _prepared(scene, seed, share=None, device="cpu", dtype=torch.float32):
@@ -112,6 +118,123 @@ def test_a_shared_problem_is_the_problem_built_alone(scene):
             assert torch.equal(a, b), f.name
     assert torch.equal(alone.sdf.values, shared.sdf.values)
     assert node_context(shared) == node_context(first) != node_context(alone)
+
+
+OTHER_SPEEDS = NodeTestSettings(slide_speed=0.05, table_slide_speed=2e-3)
+
+
+def _windows(base, scene):
+    """Frames 0-16 (seed 3, default settings) and 4-16 (seed 4, other slide speeds) of box-turn, the second built
+    with ``statics=`` from the first (as the windows of a capture), and the second searched alone."""
+    other = base.with_frames(4, 16)
+    gen = torch.Generator().manual_seed(4)
+    fresh = build_problem(other, gen)
+    other_alone = search(fresh, prune_patches(fresh, gen, settings=OTHER_SPEEDS), SETTINGS,
+                         node_settings=OTHER_SPEEDS, seed=4)
+    first, init = _prepared(scene, 3)
+    gen = torch.Generator().manual_seed(4)
+    second = build_problem(other, gen, statics=first)
+    tasks = [SearchTask(first, init, SETTINGS, seed=3),
+             SearchTask(second, prune_patches(second, gen, settings=OTHER_SPEEDS), SETTINGS, OTHER_SPEEDS, seed=4)]
+    return tasks, other_alone
+
+
+def test_frame_ranges_of_one_scene_share_calls_and_run_as_alone(base, scene, alone):
+    """The windows of a capture: two frame ranges of one scene with their own slide speeds (the capture noise of
+    each window) are tested in the same calls, their frames stacked (``stack_frames``) and their speeds per row,
+    and each runs as it does alone, bit for bit."""
+    tasks, other_alone = _windows(base, scene)
+    assert node_context(tasks[0].problem) == node_context(tasks[1].problem)
+    stats = MultiStats()
+    outcomes = search_many(tasks, stats=stats)
+    for a, o in zip((alone[3], other_alone), outcomes):
+        _assert_same_run(a, o)
+    assert max(stats.batch_sizes) > SETTINGS.trees * SETTINGS.candidates
+    assert sum(stats.batch_sizes) == sum(o.stats.nodes_tested for o in outcomes)
+
+
+def test_a_problem_with_statics_is_the_problem_built_alone(base, scene):
+    """``statics=`` (another frame range's problem) reuses its SDF and models and builds the rest: every field equals
+    the one built without it; frames of another object are refused."""
+    first = build_problem(scene, torch.Generator().manual_seed(0))
+    other = base.with_frames(30, 50)
+    with_statics = build_problem(other, torch.Generator().manual_seed(5), statics=first)
+    alone = build_problem(other, torch.Generator().manual_seed(5))
+    for f in dataclasses.fields(alone):
+        a, b = getattr(alone, f.name), getattr(with_statics, f.name)
+        if isinstance(a, torch.Tensor):
+            assert torch.equal(a, b), f.name
+    for name in ("points", "mask", "sliding_velocity", "support_index", "normal"):
+        assert torch.equal(getattr(alone.env, name), getattr(with_statics.env, name)), name
+    assert torch.equal(alone.sdf.values, with_statics.sdf.values)
+    assert with_statics.sdf is first.sdf and with_statics.hands is first.hands
+    with pytest.raises(ShapeError, match="statics"):
+        build_problem(torchhand.load_scene("mug-pickup"), torch.Generator(), statics=first)
+
+
+def test_stacked_frames_hold_each_problem_after_a_copy_of_its_first_frame(base, scene):
+    first = build_problem(scene, torch.Generator().manual_seed(0))
+    other = build_problem(base.with_frames(30, 50), torch.Generator(), statics=first)
+    stacked, starts = stack_frames([first, other])
+    assert starts == [1, 18] and stacked.T == 16 + 20 + 2
+    for p, s0 in ((first, 1), (other, 18)):
+        assert torch.equal(stacked.object_pose[s0 - 1], p.object_pose[0])
+        assert torch.equal(stacked.root[:, s0:s0 + p.T], p.root)
+        assert torch.equal(stacked.env.mask[s0:s0 + p.T], p.env.mask)
+        assert torch.equal(stacked.wrench[s0:s0 + p.T], p.wrench)
+
+
+def test_lanes_run_searches_one_after_another_and_keep_errors(scene, alone):
+    """A lane yields its searches in turn; each runs as alone. A lane that raises ends with its error as its
+    result (keep_errors) and the others go on; without keep_errors the error is raised."""
+    first, init = _prepared(scene, 3)
+    second, init2 = _prepared(scene, 4, share=first)
+
+    def two():
+        a = yield SearchTask(first, init, SETTINGS, seed=3)
+        b = yield SearchTask(second, init2, SETTINGS, seed=4)
+        return a, b
+
+    def broken():
+        yield SearchTask(first, init, dataclasses.replace(SETTINGS, max_nodes=50), seed=3)
+        raise RuntimeError("lane broke")
+
+    done = []
+    (a, b), err = search_lanes([two(), broken()], on_done=lambda i, v: done.append(i))
+    _assert_same_run(alone[3], a)
+    _assert_same_run(alone[4], b)
+    assert isinstance(err, RuntimeError) and str(err) == "lane broke" and sorted(done) == [0, 1]
+    with pytest.raises(RuntimeError, match="lane broke"):
+        search_lanes([broken()], keep_errors=False)
+
+
+def test_per_row_slide_speeds_are_each_rows_settings(base):
+    """``speeds`` gives each row its own slide speeds: a batch whose rows alternate two settings equals the
+    rows of each setting's own call, and the two settings give different verdicts (the speeds matter here: a path
+    of box-turn's turn, frames 14-30, tested again frame by frame from its previous poses)."""
+    gen = torch.Generator().manual_seed(3)
+    p = build_problem(base.with_frames(14, 30), gen)
+    path = search(p, prune_patches(p, gen), dataclasses.replace(SETTINGS, max_nodes=1500, solutions=1), seed=3)[0][0]
+    t = torch.arange(1, path.q.shape[0])
+    guides = Guides(path.guiding[1:], path.guide_link[1:], path.guide_local[1:], path.guide_obj[1:],
+                    torch.zeros_like(path.guide_obj[1:]))
+    first = torch.zeros_like(path.guiding[1:])
+    fast, slow = NodeTestSettings(), NodeTestSettings(slide_speed=1e-3, table_slide_speed=1e-3)
+
+    def node(ns, speeds=None):
+        return run_node_test(p, t, path.q[:-1], first, guides, settings=ns, prev_mask=path.c_mask[:-1],
+                             speeds=speeds)
+
+    a, b = node(fast), node(slow)
+    odd = torch.arange(t.shape[0]) % 2 == 1
+    speeds = torch.tensor([[fast.slide_speed, fast.table_slide_speed]], dtype=torch.float64).repeat(t.shape[0], 1)
+    speeds[odd] = torch.tensor([slow.slide_speed, slow.table_slide_speed], dtype=torch.float64)
+    mixed = node(fast, speeds)
+    assert not torch.equal(a.feasible, b.feasible)
+    for f in dataclasses.fields(mixed):
+        x, y, z = getattr(mixed, f.name), getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, torch.Tensor):
+            assert torch.equal(x[~odd], y[~odd]) and torch.equal(x[odd], z[odd]), f.name
 
 
 def test_a_candidates_node_test_does_not_depend_on_its_batch():

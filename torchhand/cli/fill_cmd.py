@@ -52,13 +52,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object-as-captured", action="store_true",
                    help="keep the capture's object track as is (default: put on the table where it stands and held "
                         "still where it rests, within capture noise)")
-    p.add_argument("--jobs", type=int, default=1, help="windows searched at once, in processes (default 1)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="1: every window's searches together in this process, their node tests in shared calls; "
+                        "N: N processes, each searching one window at a time (the same results; default 1)")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"],
+                   help="where the searches run (default cpu; with cuda use --jobs 1)")
     add_threads_argument(p)
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import torch
+
     from ..fill.run import fill_capture
     from ..fill.wrist import parse_tolerance
 
@@ -72,6 +78,8 @@ def run(args) -> int:
                               f"{args.window}")
     if args.slide_speed is not None and not args.slide_speed > 0:
         raise InputValueError(f"--slide-speed: expected a positive number, got {args.slide_speed:g}")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        raise InputValueError("--device cuda: no CUDA device is available; use --device cpu")
     tolerance = None if args.wrist_tolerance is None else parse_tolerance(args.wrist_tolerance)
     apply_threads(args.threads)
     say = None if args.no_progress else (lambda line: print(line, file=sys.stderr, flush=True))
@@ -80,7 +88,7 @@ def run(args) -> int:
                               overlap=args.overlap, max_nodes=args.max_nodes, seed=args.seed,
                               slide_speed=args.slide_speed, tolerance=tolerance, jobs=args.jobs, progress=say,
                               overwrite=args.overwrite, steady_object=not args.object_as_captured,
-                              stall_nodes=args.stall_nodes)
+                              stall_nodes=args.stall_nodes, device=args.device)
     except KeyboardInterrupt:
         print(f"torchhand: interrupted; nothing complete was written to {args.out} (an earlier result there is "
               f"kept whole)", file=sys.stderr)

@@ -203,7 +203,8 @@ def _write(writer, result, frame_status, prepared, phases, runs, settings, cover
     stats = stats_dict(result)
     stats["fill"] = {"window": settings.window, "overlap": settings.overlap, "variants": settings.variants,
                      "max_nodes_per_window": settings.max_nodes,
-                     "stall_nodes": settings.stall_nodes, "jobs": settings.jobs, "windows": len(runs),
+                     "stall_nodes": settings.stall_nodes, "jobs": settings.jobs, "device": settings.device,
+                     "windows": len(runs),
                      "windows_solved": sum(r.status == "solved" for r in runs),
                      "windows_partial": sum(r.status == "partial" for r in runs), "coverage": coverage,
                      "contact_frames": int(contact.sum()),

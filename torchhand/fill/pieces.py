@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-__all__ = ["Piece", "Attempt", "search_pieces", "BACK", "MIN_FRAMES"]
+__all__ = ["Piece", "Attempt", "search_pieces", "pieces_plan", "BACK", "MIN_FRAMES"]
 
 BACK = 5          # frames a new search shares with the partial piece before it (crossfaded)
 MIN_FRAMES = 4    # no search on fewer frames than this
@@ -60,11 +60,24 @@ def search_pieces(scene, start: int, stop: int, *, budget: int, stall_nodes: int
     search(sub_scene, max_nodes, stall_nodes) -> :class:`~torchhand.synthesis.pipeline.SynthesisResult` runs one
     search with the window's settings.
     Returns (pieces, attempts, the last result)."""
+    plan = pieces_plan(scene, start, stop, budget=budget, stall_nodes=stall_nodes)
+    try:
+        request = next(plan)
+        while True:
+            request = plan.send(search(*request))
+    except StopIteration as done:
+        return done.value
+
+
+def pieces_plan(scene, start: int, stop: int, *, budget: int, stall_nodes: int):
+    """:func:`search_pieces` as a generator: yields each search as (sub_scene, max_nodes, stall_nodes), is sent its
+    :class:`~torchhand.synthesis.pipeline.SynthesisResult`, returns (pieces, attempts, the last result). Whoever
+    runs the searches (one at a time, or beside other windows' in one batch) gives the same pieces."""
     pieces: list[Piece] = []
     attempts: list[Attempt] = []
     c, left, covered, fails, res = start, budget, start, 0, None
     while left > 0 and stop - c >= MIN_FRAMES:
-        res = search(scene.with_frames(c, stop), left, stall_nodes)
+        res = yield scene.with_frames(c, stop), left, stall_nodes
         st = res.stats
         left -= st.nodes_tested
         d = st.deepest_frame

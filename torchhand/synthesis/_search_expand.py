@@ -171,12 +171,16 @@ def _count(books: list, owner: torch.Tensor, sel: torch.Tensor, cause: torch.Ten
 
 
 def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: torch.Tensor,
-                 on_call=None, max_rows: int | None = None) -> WindowOutcome:
+                 on_call=None, max_rows: int | None = None, shift: torch.Tensor | None = None,
+                 speeds: torch.Tensor | None = None) -> WindowOutcome:
     """:func:`run_windows` for candidates of one or many searches that share the problem's node-test fields (the
     same scene prepared once, :mod:`.multi`): the rows are tested together and each frame's counters go to the
     :class:`~.search.SearchStats` in ``books`` that owns the row (``owner`` (N,) long, CPU). A row's outputs do
     not depend on the other rows of the batch. on_call: optional callable(n) with each node-test call's batch size;
-    max_rows: a frame's rows are tested in calls of at most this many (None: one call)."""
+    max_rows: a frame's rows are tested in calls of at most this many (None: one call). shift: per row, where its
+    search's frame 0 lies in ``p``'s frames (N,) long (problems of many frame ranges stacked into one, :mod:`.multi`;
+    the counters keep the search's own frames); speeds: per row (slide speed, table slide speed), (N, 2) float64,
+    in place of ``ns``'s (:func:`.node_test.run_node_test`)."""
     device = p.device
     N = int(c.t0.shape[0])
     t0, w, active, link, local, obj, slide, land = c.t0, c.w, c.active, c.link, c.local, c.obj, c.slide, c.land
@@ -196,14 +200,16 @@ def test_windows(p, ns, slide_speed: float, c: Candidates, books: list, owner: t
         guides = Guides(act_k, link[sel], local[sel], obj[sel], slide[sel] * act_k[..., None],
                         roll=roll[sel] & act_k if any_roll else None)
         lands = active[sel] & (land[sel] == k) & ((k > 0) | ~c.was_on[sel])
-        res = _node_tests(p, t0[sel] + k, q_prev[sel], lands | (c.first[sel] & (k == 0))[:, None, None], guides,
-                          c.weights[sel], ns, prev_mask[sel], max_rows, on_call)
+        t_p = t0[sel] + k if shift is None else t0[sel] + k + shift[sel]
+        res = _node_tests(p, t_p, q_prev[sel], lands | (c.first[sel] & (k == 0))[:, None, None], guides,
+                          c.weights[sel], ns, prev_mask[sel], max_rows, on_call,
+                          None if speeds is None else speeds[sel])
         _count(books, owner, sel, res.cause, t0[sel] + k)
         _record_failures(out, sel, res, k)
         q_prev[sel] = res.q
         prev_mask[sel] = res.c_mask
         if any_roll:                 # a rolling finger's guiding hand point is where the test put it this frame
-            local[sel] = rolled_local(p, t0[sel] + k, res.q, guides, ns)
+            local[sel] = rolled_local(p, t_p, res.q, guides, ns)
         _record_frame(out, sel, res, act_k, c)
     return out
 
@@ -254,7 +260,7 @@ def _record_frame(out: WindowOutcome, sel: torch.Tensor, res, act_k: torch.Tenso
     out.g_frames["guide_local"].append(c.local.clone())
 
 
-def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max_rows, on_call):
+def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max_rows, on_call, speeds=None):
     """:func:`run_node_test` of the rows, in calls of at most ``max_rows`` rows of near-equal size (every row's
     answer is its own, so the split changes nothing but the time)."""
     n = int(t.shape[0])
@@ -264,7 +270,7 @@ def _node_tests(p, t, q_prev, first, guides: Guides, weights, ns, prev_mask, max
         g = guides.rows(idx) if parts > 1 else guides
         rows = (lambda x: x[idx]) if parts > 1 else (lambda x: x)
         results.append(run_node_test(p, rows(t), rows(q_prev), rows(first), g, rows(weights), settings=ns,
-                                     prev_mask=rows(prev_mask)))
+                                     prev_mask=rows(prev_mask), speeds=None if speeds is None else rows(speeds)))
         if on_call is not None:
             on_call(int(idx.numel()))
     if parts == 1:

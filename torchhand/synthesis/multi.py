@@ -7,12 +7,19 @@ round, each search that is still running yields its jobs; the jobs of all search
 are expanded as one batch (:func:`._search_expand.test_windows`: one node-test call per frame of the round's
 windows), and each search is sent its own expansions.
 
-**Grouping, not padding.** Searches share a call when the node test would read the same things for them: the same
-prepared scene (hands, root poses, object poses, SDF, table contacts, mesh: the same objects, as
-:func:`.problem.build_problem` gives to the seeds of one scene with ``share=``), the same node-test settings and
-the same slide speed. Searches of other scenes, hands, dtypes or devices form other groups, each its own call per
-frame; nothing is padded. The surface samples and contact patches, which differ by seed, are read only by the
-search itself (its plans), never by the node test.
+**Grouping and stacking, not padding.** Searches share a call when the node test would read the same things for
+them apart from their frames: the same hand models, SDF, mesh and ground (the same objects, as
+:func:`.problem.build_problem` gives to the seeds of one scene with ``share=`` and to the frame ranges of one scene
+with ``statics=``), the same scalars and number of table-contact slots, dtype and device, the same node-test
+settings apart from the two slide speeds, and the same guide slide speed. Searches of one problem (the seeds of a
+scene) are tested on it; searches of different frame ranges (the windows of a capture, :mod:`torchhand.fill`) on
+:func:`stack_frames` of their problems, each row's frames shifted to its own block, and, where their slide speeds
+differ (each window's capture noise), with per-row speeds. Searches of other scenes, hands, dtypes or devices form
+other groups, each its own call per frame; nothing is padded. The surface samples and contact patches, which
+differ by seed and window, are read only by the search itself (its plans), never by the node test.
+
+**Lanes.** :func:`search_lanes` runs generators of searches (a capture window's searches run one after another,
+each starting where the one before stopped): a lane yields a task, is sent its outcome, and yields the next.
 
 **Determinism.** A search's run is byte-identical to running it alone (:func:`.search.search`) with the same seed
 and node budget, on the same device, dtype and thread count: a candidate's node-test outputs do not depend on the
@@ -35,7 +42,8 @@ from .problem import SynthesisProblem
 from .search import SearchSettings, SearchStats, Solution, _Search
 from ._search_expand import Candidates, WindowOutcome, candidates, regroup, test_windows
 
-__all__ = ["SearchTask", "SearchOutcome", "MultiStats", "search_many", "node_context", "CPU_MAX_ROWS"]
+__all__ = ["SearchTask", "SearchOutcome", "MultiStats", "search_many", "search_lanes", "node_context", "stack_frames",
+           "CPU_MAX_ROWS"]
 
 
 @dataclass(frozen=True)
@@ -71,18 +79,48 @@ class MultiStats:
     batch_sizes: list = field(default_factory=list)
 
 
-_SHARED = ("hands", "root", "object_pose", "object_inv", "com", "wrench", "sdf", "env", "mesh", "ground")
+_STATIC = ("hands", "sdf", "mesh", "ground")
+_FRAMES = ("root", "object_pose", "object_inv", "com", "wrench", "env")
 _VALUES = ("env_friction", "friction", "mass", "weight", "fps", "table_height")
+_SPEEDS = ("slide_speed", "table_slide_speed")
 
 
 def node_context(problem: SynthesisProblem) -> tuple:
-    """What the node test reads of ``problem``: the identities of its shared tensors and models and its
-    scalars. Problems with the same context can be tested in one call."""
-    return tuple(id(getattr(problem, f)) for f in _SHARED) + tuple(getattr(problem, f) for f in _VALUES)
+    """What the node test reads of ``problem`` apart from its frames: the identities of its models, SDF, mesh and
+    ground, its scalars, its table-contact slots, dtype and device. Problems with the same context can be tested in
+    one call (their frames stacked when they differ, :func:`stack_frames`)."""
+    return (tuple(id(getattr(problem, f)) for f in _STATIC) + tuple(getattr(problem, f) for f in _VALUES)
+            + (int(problem.env.mask.shape[1]), problem.dtype, str(problem.device)))
+
+
+def _frames_key(problem: SynthesisProblem) -> tuple:
+    return tuple(id(getattr(problem, f)) for f in _FRAMES)
 
 
 def _group_key(run: _Search) -> tuple:
-    return node_context(run.p), repr(run.ns), run.s.slide_speed
+    return node_context(run.p), repr(dataclasses.replace(run.ns, **dict.fromkeys(_SPEEDS, 0.0))), run.s.slide_speed
+
+
+def stack_frames(problems) -> tuple[SynthesisProblem, list[int]]:
+    """One problem whose frames are those of every problem of ``problems`` (same :func:`node_context`) one after
+    another, each block led by a copy of its first frame; returns it and where each problem's frame 0 lies. The
+    copy makes a row's "previous frame" at its own frame 0 its frame 0 again, as alone (the node test's sliding
+    rule reads frame t - 1, clamped at 0), so a row's inputs are the same values as in its own problem."""
+    def cat(get, dim: int = 0) -> torch.Tensor:
+        return torch.cat([torch.cat([get(p).narrow(dim, 0, 1), get(p)], dim) for p in problems], dim)
+
+    starts, at = [], 0
+    for p in problems:
+        starts.append(at + 1)
+        at += p.T + 1
+    lead = problems[0]
+    env = type(lead.env)(points=cat(lambda p: p.env.points), mask=cat(lambda p: p.env.mask),
+                         sliding_velocity=cat(lambda p: p.env.sliding_velocity),
+                         support_index=cat(lambda p: p.env.support_index), normal=lead.env.normal)
+    stacked = dataclasses.replace(lead, root=cat(lambda p: p.root, 1), object_pose=cat(lambda p: p.object_pose),
+                                  object_inv=cat(lambda p: p.object_inv), com=cat(lambda p: p.com),
+                                  wrench=cat(lambda p: p.wrench), env=env)
+    return stacked, starts
 
 
 CPU_MAX_ROWS = 256
@@ -93,65 +131,137 @@ takes them in one call."""
 
 def search_many(tasks, *, stats: MultiStats | None = None, on_round=None,
                 max_rows: int | None | str = "auto") -> list[SearchOutcome]:
-    """Run every :class:`SearchTask` to its end (see the module docstring); returns their outcomes in order.
+    """Run every :class:`SearchTask` to its end (see the module docstring); returns their outcomes in order. An
+    error in any search is raised at once.
 
     stats: a :class:`MultiStats` to fill; on_round: optional callable(MultiStats, running) after every round,
     ``running`` the number of searches not yet finished; max_rows: the largest node-test call ("auto":
     :data:`CPU_MAX_ROWS` on a CPU, unlimited on a GPU; None: unlimited). No choice changes a result."""
-    tasks = list(tasks)
+    return search_lanes([_one(t) for t in tasks], stats=stats, on_round=on_round, max_rows=max_rows,
+                        keep_errors=False)
+
+
+def _one(task: SearchTask):
+    outcome = yield task
+    return outcome
+
+
+def search_lanes(lanes, *, stats: MultiStats | None = None, on_round=None, on_done=None,
+                 max_rows: int | None | str = "auto", keep_errors: bool = True) -> list:
+    """Run every lane to its end; returns what each returned, in order.
+
+    A lane is a generator of searches run one after another (the pieces of a window, :mod:`torchhand.fill`): it
+    yields a :class:`SearchTask`, is sent that search's :class:`SearchOutcome` when it ends, and yields the next
+    task or returns its result. The searches of all lanes advance together as in :func:`search_many`: each is the
+    same as run alone. An error raised by a search is thrown into its lane; an error that ends a lane is, with
+    ``keep_errors``, its result (the other lanes go on), otherwise raised at once. on_done: optional
+    callable(index, result) as each lane ends; stats, on_round, max_rows: as :func:`search_many`'s."""
+    lanes = list(lanes)
     stats = MultiStats() if stats is None else stats
-    runs = [_Search(t.problem, t.init, t.settings, t.node_settings, t.seed) for t in tasks]
-    coroutines = [r.rounds(t.progress, t.accept) for r, t in zip(runs, tasks)]
-    outcomes: list = [None] * len(tasks)
+    results: list = [None] * len(lanes)
+    runs: dict[int, _Search] = {}
+    searches: dict = {}
     waiting: dict[int, list] = {}
 
-    def advance(i: int, sent) -> None:
+    def end(i: int, value) -> None:
+        results[i] = value
+        if on_done is not None:
+            on_done(i, value)
+
+    def step_lane(i: int, sent=None, error: Exception | None = None) -> None:
         try:
-            waiting[i] = next(coroutines[i]) if sent is None else coroutines[i].send(sent)
+            task = lanes[i].send(sent) if error is None else lanes[i].throw(error)
         except StopIteration as done:
-            waiting.pop(i, None)
+            return end(i, done.value)
+        except Exception as exc:
+            if not keep_errors:
+                raise
+            return end(i, exc)
+        try:
+            runs[i] = _Search(task.problem, task.init, task.settings, task.node_settings, task.seed)
+            searches[i] = runs[i].rounds(task.progress, task.accept)
+        except Exception as exc:
+            return step_lane(i, error=exc)
+        step_search(i, None)
+
+    def step_search(i: int, sent) -> None:
+        try:
+            waiting[i] = next(searches[i]) if sent is None else searches[i].send(sent)
+            return
+        except StopIteration as done:
             run = runs[i]
             partial = run.partial() if not done.value and run.deepest_path else None
-            outcomes[i] = SearchOutcome(tuple(done.value), run.stats, partial)
+            outcome, error = SearchOutcome(tuple(done.value), run.stats, partial), None
+        except Exception as exc:
+            outcome, error = None, exc
+        waiting.pop(i, None)
+        step_lane(i, outcome, error)
 
-    for i in range(len(tasks)):
-        advance(i, None)
+    for i in range(len(lanes)):
+        step_lane(i)
+    stack_cache: dict = {}
     while waiting:
         groups: dict = {}
         for i in sorted(waiting):
             groups.setdefault(_group_key(runs[i]), []).append(i)
-        results = {}
+        expansions = {}
         for members in groups.values():
-            results.update(_expand_group(runs, members, waiting, stats, max_rows))
+            expansions.update(_expand_group(runs, members, waiting, stats, max_rows, stack_cache))
         stats.rounds += 1
-        for i in sorted(results):
-            advance(i, results[i])
+        for i in sorted(expansions):
+            step_search(i, expansions[i])
         if on_round is not None:
             on_round(stats, len(waiting))
-    return outcomes
+    return results
 
 
-def _expand_group(runs: list, members: list, waiting: dict, stats: MultiStats, max_rows) -> dict:
+def _expand_group(runs: dict, members: list, waiting: dict, stats: MultiStats, max_rows, cache: dict) -> dict:
     """The round's jobs of the searches ``members`` (one node-test context) expanded in one batch; per search
     its list of expansions."""
     parts = [(i, *candidates(runs[i], waiting[i])) for i in members]
-    sizes = [len(cand) for _, cand, _ in parts]
+    sizes = torch.tensor([len(cand) for _, cand, _ in parts])
     joined = Candidates(**{f.name: torch.cat([getattr(c, f.name) for _, _, c in parts])
                            for f in dataclasses.fields(Candidates)})
-    owner = torch.repeat_interleave(torch.arange(len(parts)), torch.tensor(sizes))
+    owner = torch.repeat_interleave(torch.arange(len(parts)), sizes)
     lead = runs[members[0]]
     if max_rows == "auto":
         max_rows = CPU_MAX_ROWS if lead.p.device.type == "cpu" else None
+    problem, shift = _stacked(cache, [runs[i].p for i in members], owner)
+    speeds = {tuple(getattr(runs[i].ns, f) for f in _SPEEDS) for i in members}
+    row_speeds = None
+    if len(speeds) > 1:
+        per = torch.tensor([[getattr(runs[i].ns, f) for f in _SPEEDS] for i in members], dtype=torch.float64)
+        row_speeds = per[owner].to(lead.p.device)
     calls = []
-    outcome = test_windows(lead.p, lead.ns, lead.s.slide_speed, joined, [runs[i].stats for i in members], owner,
-                           on_call=calls.append, max_rows=max_rows)
+    outcome = test_windows(problem, lead.ns, lead.s.slide_speed, joined, [runs[i].stats for i in members], owner,
+                           on_call=calls.append, max_rows=max_rows, shift=shift, speeds=row_speeds)
     stats.calls += len(calls)
     stats.batch_sizes.extend(calls)
     out, start = {}, 0
-    for (i, cand, _), n in zip(parts, sizes):
+    for (i, cand, _), n in zip(parts, sizes.tolist()):
         out[i] = regroup(waiting[i], cand, _rows(outcome, start, start + n))
         start += n
     return out
+
+
+def _stacked(cache: dict, problems: list, owner: torch.Tensor):
+    """The problem to test the rows of ``problems`` (one per member search) with, and each row's frame shift: the
+    members' own problem when they share its frames (the seeds of one scene), else :func:`stack_frames` of the
+    distinct ones (cached while the same set runs)."""
+    distinct: dict = {}
+    for p in problems:
+        distinct.setdefault(_frames_key(p), p)
+    if len(distinct) == 1:
+        return problems[0], None
+    key = tuple(distinct)
+    if key not in cache:
+        if len(cache) >= 8:             # the sets change only as searches end or start
+            cache.pop(next(iter(cache)))
+        cache[key] = (tuple(distinct.values()),) + stack_frames(list(distinct.values()))
+    _, stacked, starts = cache[key]
+    where = dict(zip(key, starts))
+    per_member = torch.tensor([where[_frames_key(p)] for p in problems])
+    return stacked, per_member[owner].to(problems[0].device)
 
 
 def _rows(o: WindowOutcome, a: int, b: int) -> WindowOutcome:

@@ -83,7 +83,7 @@ __all__ = ["Guides", "NodeTestSettings", "FrameResult", "run_node_test", "kinema
 def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tensor, first: torch.Tensor,
                guides: Guides, weights: torch.Tensor | None = None,
                settings: NodeTestSettings = NodeTestSettings(), dynamics: bool = True,
-               prev_mask: torch.Tensor | None = None) -> FrameResult:
+               prev_mask: torch.Tensor | None = None, speeds: torch.Tensor | None = None) -> FrameResult:
     """Kinematic and dynamic test of N candidates (see the module docstring).
 
     t: frame of each candidate, (N,) long; q_prev: previous pose, (N, H, D), radians; first: Eq. 3 is not applied,
@@ -93,13 +93,16 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
     kinematic test alone); prev_mask: the hand contacts of the previous frame (pose ``q_prev`` at ``t - 1``),
     (N, K) bool, or None where there is no previous frame. A contact held over both frames whose hand point moves
     on the object faster than ``settings.slide_speed`` is sliding: its force must lie on the cone's boundary ray
-    opposite the motion (the final check of the pipeline applies the same rule).
+    opposite the motion (the final check of the pipeline applies the same rule). speeds: per row
+    (``slide_speed``, ``table_slide_speed``), (N, 2) float64, in place of the settings' two (the searches of many
+    windows tested together, :mod:`.multi`); None: the settings'.
     """
     if t.shape[0] == 1:     # a batch of one would take other code paths than the same row among others
         two = torch.zeros(2, dtype=torch.long, device=t.device)
         guides = guides.rows(two)
         res = run_node_test(problem, t[two], q_prev[two], first[two], guides, None if weights is None else
-                            weights[two], settings, dynamics, None if prev_mask is None else prev_mask[two])
+                            weights[two], settings, dynamics, None if prev_mask is None else prev_mask[two],
+                            None if speeds is None else speeds[two])
         return FrameResult(**{f.name: getattr(res, f.name)[:1] for f in dataclasses.fields(res)})
     kin = [_hand_kinematic_test(problem, h, t, q_prev[:, h], first, guides, settings) for h in range(problem.H)]
     # sliding guided contacts: the object moves relative to the finger opposite to the contact's motion on it
@@ -111,7 +114,7 @@ def run_node_test(problem: SynthesisProblem, t: torch.Tensor, q_prev: torch.Tens
         onehot = torch.nn.functional.one_hot(guides.link[:, h], L).to(f64) * guides.active[:, h, :, None].to(f64)
         hand_slide.append(-torch.einsum("nfl,nfc->nlc", onehot, slide_world[:, h]))
     prev = None if prev_mask is None else (q_prev, prev_mask)
-    return _finish(problem, t, kin, torch.cat(hand_slide, 1), weights, settings, dynamics, prev)
+    return _finish(problem, t, kin, torch.cat(hand_slide, 1), weights, settings, dynamics, prev, speeds)
 
 
 def evaluate_poses(problem: SynthesisProblem, t: torch.Tensor, q: torch.Tensor, q_prev: torch.Tensor | None = None,
@@ -195,9 +198,10 @@ def _kinematic_verdict(problem: SynthesisProblem, hand, t: torch.Tensor, poses: 
 
 
 def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: torch.Tensor,
-            weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool, prev=None) -> FrameResult:
+            weights: torch.Tensor | None, s: NodeTestSettings, dynamics: bool, prev=None,
+            speeds: torch.Tensor | None = None) -> FrameResult:
     """Kinematic verdicts, contact collection and the dynamic test from each hand's (q, poses, guide error,
-    penetration)."""
+    penetration); speeds: as :func:`run_node_test`'s."""
     H, F = problem.H, problem.F
     N = t.shape[0]
     qs, kin_fail, errs, pens, c_mask, c_local, c_point, c_normal = [], [], [], [], [], [], [], []
@@ -254,12 +258,13 @@ def _finish(problem: SynthesisProblem, t: torch.Tensor, kin: list, hand_slide: t
         q_prev, prev_mask = prev
         held = c_mask & prev_mask
         direction, c_sliding = _motion_slide(problem, t, q_prev, [k[1] for k in kin], c_local, held,
-                                             s.slide_speed)
+                                             s.slide_speed if speeds is None else speeds[:, :1])
         hand_slide = torch.where(held[..., None], direction, hand_slide)
 
     # --- dynamic test (Eqs. 4–8), float64, hand and table contacts together ----------------------------------
     forces, dyn_ok = _dynamic_test(problem, t, c_point, c_normal, c_mask, link_weight, hand_slide, kin_bad,
-                                   fingers_bad, dynamics, s, dtype)
+                                   fingers_bad, dynamics, s, dtype,
+                                   s.table_slide_speed if speeds is None else speeds[:, 1:, None])
     K = c_mask.shape[1]
     c_force, env_force = forces[:, :K], forces[:, K:]
     cause = torch.where(kin_bad, CAUSE_KINEMATIC, torch.where(fingers_bad, CAUSE_FINGERS,
@@ -303,10 +308,11 @@ def _fingertip_proxies(problem: SynthesisProblem, t: torch.Tensor, kin: list, c_
 
 
 def _dynamic_test(problem: SynthesisProblem, t: torch.Tensor, c_point, c_normal, c_mask, link_weight: list,
-                  hand_slide, kin_bad, fingers_bad, dynamics: bool, s: NodeTestSettings, dtype):
+                  hand_slide, kin_bad, fingers_bad, dynamics: bool, s: NodeTestSettings, dtype, table_tol):
     """The dynamic test (Eqs. 4–8) of the candidates that passed the kinematic test: the hand contacts and the
     object-table contacts solved together by the friction-cone kernel, float64. Returns the contact forces
-    (N, K + E, 3) in ``dtype`` (zero where a test failed or did not run) and whether it passed, (N,) bool."""
+    (N, K + E, 3) in ``dtype`` (zero where a test failed or did not run) and whether it passed, (N,) bool.
+    table_tol: the table's slide speed, a number or (N, 1, 1)."""
     N, device = t.shape[0], c_point.device
     K = c_mask.shape[1]
     E = problem.env.mask.shape[1]
@@ -320,7 +326,7 @@ def _dynamic_test(problem: SynthesisProblem, t: torch.Tensor, c_point, c_normal,
     w = torch.cat([torch.cat(link_weight, 1).to(f64), torch.full((N, E), s.env_weight, dtype=f64, device=device)], 1)
     env_slide = problem.env.sliding_velocity[t].to(f64)
     speed = env_slide.norm(dim=-1, keepdim=True)
-    env_slide = torch.where(speed < s.table_slide_speed, torch.zeros_like(env_slide),
+    env_slide = torch.where(speed < table_tol, torch.zeros_like(env_slide),
                             env_slide / speed.clamp_min(1e-12))
     mask = torch.cat([c_mask, env_on], 1)
     run = ~kin_bad & ~fingers_bad

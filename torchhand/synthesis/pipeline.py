@@ -324,23 +324,23 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
 
 @dataclass(frozen=True)
 class _Options:
-    """The settings of :func:`synthesize` that every seed of a run shares."""
+    """The settings of :func:`synthesize` that every seed of a run shares (the defaults are :func:`synthesize`'s)."""
 
-    solutions: int
-    max_nodes: int | None
-    time_budget: float | None
-    epsilon: float
-    strategy: str
-    device: object
-    dtype: torch.dtype
-    trees: int
-    candidates: int
-    reconstruct: bool
-    max_joint_speed: float
-    keep_unsmoothed: bool
-    min_difference: float
-    node_settings: NodeTestSettings
-    stall_nodes: int | None
+    solutions: int = 10
+    max_nodes: int | None = DEFAULT_MAX_NODES
+    time_budget: float | None = None
+    epsilon: float = 10.0
+    strategy: str = "mixed"
+    device: object = "cpu"
+    dtype: torch.dtype = torch.float32
+    trees: int = 16
+    candidates: int = 16
+    reconstruct: bool = True
+    max_joint_speed: float = 8.0
+    keep_unsmoothed: bool = False
+    min_difference: float = math.radians(2.0)
+    node_settings: NodeTestSettings = NodeTestSettings()
+    stall_nodes: int | None = None
 
 
 @dataclass(frozen=True)
@@ -378,13 +378,14 @@ def _scene_for(scene, mount_fit: bool, report):
 
 
 def _start(scene: Scene, fits: tuple, seed: int, t_start: float, o: _Options, progress, on_solution,
-           share: SynthesisProblem | None = None) -> _Run:
+           share: SynthesisProblem | None = None, statics: SynthesisProblem | None = None) -> _Run:
     """Prepare one seed's search: its problem (``share``: another seed's problem of the scene, whose SDF and
-    models it reuses), its pruned patch samples, and the callbacks that finish each path it finds."""
+    models it reuses; ``statics``: a problem of other frames of the scene, whose SDF and models it reuses), its
+    pruned patch samples, and the callbacks that finish each path it finds."""
     report = _reporter(progress, t_start)
     gen = torch.Generator().manual_seed(seed)
     report("prepare", seed=seed)
-    problem = build_problem(scene, gen, device=o.device, dtype=o.dtype, share=share)
+    problem = build_problem(scene, gen, device=o.device, dtype=o.dtype, share=share, statics=statics)
     report("prune", seed=seed)
     init = prune_patches(problem, gen, settings=o.node_settings)
     t_prep = time.perf_counter() - t_start

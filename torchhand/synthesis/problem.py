@@ -214,27 +214,35 @@ def _thin_env(env: EnvContacts, most: int) -> EnvContacts:
 
 def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dtype=torch.float32,
                   voxel_size: float = 0.0015, surface_samples: int = 3000, max_env_contacts: int = 8,
-                  progress: bool = False, share: SynthesisProblem | None = None) -> SynthesisProblem:
+                  progress: bool = False, share: SynthesisProblem | None = None,
+                  statics: SynthesisProblem | None = None) -> SynthesisProblem:
     """Prepare ``scene`` for the search (see the module docstring). Randomness only from ``generator`` (CPU): the
     surface samples and the finger workspaces (so the contact patches), nothing else.
 
     share: a problem built from the same scene with the same device, dtype and settings (another seed's): its
     hands, poses, wrenches, SDF, table contacts and mesh are reused (the same objects, so the searches of both
     can be tested in one node-test call, :mod:`.multi`) and only the seed's samples and patches are drawn. The
-    result is the same as without it."""
+    result is the same as without it. statics: a problem of another frame range of the same scene (the windows of
+    a capture, ``Scene.with_frames``), same device, dtype and settings: its hand models, SDF, mesh and ground are
+    reused (the same objects: the searches of both can share node-test calls, :mod:`.multi`), the rest is this
+    scene's; the result equals one built without it."""
     pose64 = scene.object_pose.double()
     pts, nrm = sample_surface(scene.object.mesh, surface_samples, generator, dtype=torch.float64)
     patch = _patches(scene, pose64, pts, generator).to(device)
     if share is not None:
         return dataclasses.replace(share, surface=pts.to(device, dtype), surface_normal=nrm.to(device, dtype),
                                    patch=patch)
-    hands = tuple(track_hand(track).to(device, dtype) for track in scene.hands)
+    if statics is not None and (len(statics.hands) != len(scene.hands) or statics.mesh is not scene.object.mesh):
+        raise ShapeError("statics: expected a problem of the same object mesh and hands as the scene")
+    hands = statics.hands if statics is not None else tuple(track_hand(track).to(device, dtype)
+                                                             for track in scene.hands)
     root = torch.stack([track.wrist_pose for track in scene.hands]).to(device, dtype)
     obj = scene.object
     com64, wrench64 = required_wrench(pose64, torch.tensor(np.array(obj.com), dtype=torch.float64), obj.mass,
                                       torch.tensor(np.array(obj.inertia), dtype=torch.float64), scene.gravity.double(),
                                       scene.fps, external=scene.external_wrench)
-    sdf = SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(device, dtype)
+    sdf = statics.sdf if statics is not None else SDFGrid.from_mesh(obj.mesh, voxel_size, progress=progress).to(
+        device, dtype)
     env = _thin_env(environment_contacts(scene), max_env_contacts)
     return SynthesisProblem(
         hands=hands, sides=tuple(t.side for t in scene.hands), root=root,
@@ -246,7 +254,8 @@ def build_problem(scene: Scene, generator: torch.Generator, *, device="cpu", dty
         env_friction=float(scene.environment.friction), friction=float(scene.friction), mass=float(obj.mass),
         weight=float(obj.mass * scene.gravity.norm()), fps=float(scene.fps),
         table_height=float(scene.environment.table_height) if scene.environment.table and scene.environment.plain
-        else None, mesh=obj.mesh, ground=None if scene.environment.plain else scene.environment.ground())
+        else None, mesh=obj.mesh, ground=None if scene.environment.plain else
+        statics.ground if statics is not None else scene.environment.ground())
 
 
 def _patches(scene: Scene, pose64: torch.Tensor, pts: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
