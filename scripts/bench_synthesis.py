@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import sys
 import tempfile
 import time
@@ -259,11 +260,12 @@ def bench_batch(scene: str = "box-turn", seeds=tuple(range(16)), solutions: int 
 
 def bench_fill(frames: str = "290:420", window: int = 30, overlap: int = 5, max_nodes: int = 900,
                stall_nodes: int = 300, variants: int = 2, device: str = "cpu",
-               capture: str | None = None) -> dict:
+               capture: str | None = None, alternations: int = 1) -> dict:
     """The windows of a capture (ManipNet mug1's ``frames``, right hand) searched together
     (:func:`torchhand.fill.run.search_windows` with one process) against each window alone, one after another, in
     the same process: wall times, whether every window's run (pieces, motions, node tests) is the alone one, and the
-    scheduler's calls. capture: a ManipNet capture directory (default the shared data's mug1)."""
+    scheduler's calls. capture: a ManipNet capture directory (default the shared data's mug1); alternations: runs
+    of each, alternating, alone first (medians)."""
     from pathlib import Path
 
     from torchhand.fill.run import FillSettings, clip_phases, plan_fill, run_window, search_windows
@@ -285,25 +287,35 @@ def bench_fill(frames: str = "290:420", window: int = 30, overlap: int = 5, max_
         calls.append(ms)
         return real(*args, **dict(kw, stats=ms))
 
-    multi.search_lanes = counted
-    try:
+    def together():
+        multi.search_lanes = counted
+        try:
+            return search_windows(plan.prepared.scene, plan.windows, plan.settings, None, plan.phases)
+        finally:
+            multi.search_lanes = real
+
+    def alone():
+        return [run_window(plan.prepared.scene, w, plan.settings, clip_phases(plan.phases, w.start, w.stop) or None)
+                for w in plan.windows]
+
+    times: dict = {"alone": [], "together": []}
+    runs: dict = {}
+    for mode in ("alone", "together") * alternations:          # alone first: any warm-up favours it
         t0 = time.perf_counter()
-        together = search_windows(plan.prepared.scene, plan.windows, plan.settings, None, plan.phases)
-        together_s = time.perf_counter() - t0
-    finally:
-        multi.search_lanes = real
+        runs[mode] = alone() if mode == "alone" else together()
+        times[mode].append(time.perf_counter() - t0)
     ms = calls[0]
-    alone_s, same = [], []
-    for w, run in zip(plan.windows, together):
-        t0 = time.perf_counter()
-        alone = run_window(plan.prepared.scene, w, plan.settings, clip_phases(plan.phases, w.start, w.stop) or None)
-        alone_s.append(time.perf_counter() - t0)
-        same.append(_window_digest(alone) == _window_digest(run) and alone.nodes == run.nodes)
+    same = [_window_digest(a) == _window_digest(b) and a.nodes == b.nodes
+            for a, b in zip(runs["alone"], runs["together"])]
+    med = {k: statistics.median(v) for k, v in times.items()}
     return {"frames": frames, "device": device, "windows": len(plan.windows), "max_nodes": max_nodes,
-            "node_tests": sum(r.nodes for r in together), "statuses": " ".join(r.status for r in together),
-            "together_s": together_s, "alone_sum_s": sum(alone_s), "together_over_alone": together_s / sum(alone_s),
-            "identical": f"{sum(same)}/{len(same)}", "calls": ms.calls,
-            "mean_batch": sum(ms.batch_sizes) / max(ms.calls, 1), "max_batch": max(ms.batch_sizes, default=0)}
+            "node_tests": sum(r.nodes for r in runs["together"]),
+            "statuses": " ".join(r.status for r in runs["together"]),
+            "together_s": " / ".join(f"{x:.1f}" for x in times["together"]),
+            "alone_s": " / ".join(f"{x:.1f}" for x in times["alone"]),
+            "together_over_alone": med["together"] / med["alone"], "identical": f"{sum(same)}/{len(same)}",
+            "calls": ms.calls, "mean_batch": sum(ms.batch_sizes) / max(ms.calls, 1),
+            "max_batch": max(ms.batch_sizes, default=0)}
 
 
 def _window_digest(run) -> str:
@@ -380,7 +392,7 @@ def main(argv=None) -> int:
         out["batch"] = rows
     if a.suite == "fill":
         rows = [bench_fill(a.fill_frames, a.fill_window[0], a.fill_window[1], a.max_nodes, a.stall_nodes,
-                           a.solutions, a.device)]
+                           a.solutions, a.device, alternations=a.repeats)]
         print("\n[a capture's windows together against each window alone]")
         print_table(rows, list(rows[0].keys()))
         out["fill"] = rows

@@ -120,6 +120,30 @@ def test_kinematic_verdicts_are_the_node_tests(box_turn_problem):
     assert torch.equal(one, full[:1])
 
 
+def test_pruning_in_one_call_or_many_keeps_the_same_samples(box_turn_problem):
+    """The key frames' candidates are drawn first, then tested: whatever the calls (one per key frame, all at once,
+    50 rows) the same samples survive as when each key frame is drawn and tested in turn."""
+    from torchhand.synthesis.initial import _draw, _key_frames, _verdicts, prune_patches
+
+    scene, _ = box_turn_problem
+    p = build_problem(scene.with_frames(2, 9), torch.Generator().manual_seed(0))     # the approach: 7 key frames
+    outs = [prune_patches(p, torch.Generator().manual_seed(3), per_finger=40, max_rows=m) for m in ("auto", None, 50)]
+    _, keys = _key_frames(p, 0.003, 0.05)
+    gen = torch.Generator().manual_seed(3)
+    ref = torch.zeros_like(outs[0].ok)
+    tried = 0
+    for k, t in enumerate(keys.tolist()):
+        sample, active = _draw(p, t, 40, gen)
+        if sample.shape[0]:
+            good = active & ~_verdicts(p, torch.full((sample.shape[0],), t), sample, active, NodeTestSettings())
+            tried += int(active.sum())
+            for f in range(p.F):
+                ref[k, 0, f, sample[good[:, 0, f], 0, f]] = True
+    assert len(keys) > 1 and 0 < int(ref.sum()) < tried
+    for out in outs:
+        assert torch.equal(out.ok, ref) and torch.equal(out.key_frames, keys)
+
+
 # --- end to end ------------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
