@@ -93,7 +93,7 @@ def one_intra_op_thread():
 LONG_FILES = {
     "tests/torchhand/test_numerics.py": 290, "tests/torchhand/test_batch_acceptance.py": 272,
     "tests/torchhand/test_synthesis.py": 225, "tests/torchhand/test_batch.py": 180,
-    "tests/torchhand/test_multi_search.py": 140, "tests/torchhand/test_mount_fit.py": 55,
+    "tests/torchhand/test_multi_search.py": 225, "tests/torchhand/test_mount_fit.py": 55,
     "tests/torchhand/test_synthesis_output.py": 105, "tests/torchhand/test_check.py": 90,
     "tests/torchhand/test_liu_scenes.py": 76, "tests/torchhand/test_sdf.py": 67,
     "tests/torchhand/test_fill_pieces.py": 61, "tests/render/test_render_cli.py": 60,
