@@ -143,19 +143,23 @@ def test_windows_in_worker_processes_give_the_same_result(tmp_path, monkeypatch)
     sys.path.insert(0, str(Path(__file__).parent))
     from test_fill import PHASES, _scene
 
-    stacked = []
+    import torchhand.fill.run as run_mod
+
+    stacked, lines = [], []
     real = multi.stack_frames
     monkeypatch.setattr(multi, "stack_frames", lambda problems: stacked.append(len(problems)) or real(problems))
+    monkeypatch.setattr(run_mod, "REPORT_EVERY_S", 0.0)       # a progress line after every round
     got = {}
     for jobs in (1, 2):
         res = fill_capture(_scene(), tmp_path / f"j{jobs}", phases=PHASES, variants=1, window=6, overlap=2,
-                           max_nodes=1500, seed=0, jobs=jobs)
+                           max_nodes=1500, seed=0, jobs=jobs, progress=lines.append)
         assert [r.status for r in res.windows] == ["solved", "solved"]
         got[jobs] = res
     np.testing.assert_array_equal(got[1].frame_status, got[2].frame_status)
     for a, b in zip(got[1].windows, got[2].windows):
         assert a.nodes == b.nodes and all(torch.equal(x, y) for x, y in zip(a.qs, b.qs))
     assert stacked and max(stacked) == 2           # the two windows' searches were tested together
+    assert any(line.startswith("searching: 2 of 2 window(s) running;") for line in lines)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

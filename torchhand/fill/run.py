@@ -229,8 +229,9 @@ def search_windows(scene, windows, settings: FillSettings, progress=None, phases
     return [done[w.index] for w in windows]
 
 
-ROUND_REPORT = 200
-"""With one process, a progress line every this many rounds of the windows' searches."""
+REPORT_EVERY_S = 30.0
+"""With one process, a progress line at most this often (seconds) while the windows search (only the lines'
+timing depends on the clock, never a result)."""
 
 
 def _search_together(scene, windows, settings: FillSettings, progress, own: dict) -> list[WindowRun]:
@@ -247,10 +248,14 @@ def _search_together(scene, windows, settings: FillSettings, progress, own: dict
         runs[i] = run
         _report(progress, run, len(windows))
 
+    last = [time.monotonic()]
+
     def on_round(stats: MultiStats, running: int) -> None:
-        if progress is not None and stats.rounds % ROUND_REPORT == 0:
-            progress(f"searching: {running} of {len(windows)} window(s) running, {sum(stats.batch_sizes)} node tests "
-                     f"in {stats.calls} call(s) of {sum(stats.batch_sizes) / max(stats.calls, 1):.0f} on average")
+        if progress is not None and running and time.monotonic() - last[0] >= REPORT_EVERY_S:
+            last[0] = time.monotonic()
+            nodes = sum(stats.batch_sizes)
+            progress(f"searching: {running} of {len(windows)} window(s) running; {nodes} node tests in {stats.calls} "
+                     f"call(s) of {nodes / max(stats.calls, 1):.0f} candidates on average")
 
     lanes = [window_lane(scene, w, settings, own[w.index], shared) for w in windows]
     search_lanes(lanes, on_done=done, on_round=on_round)
