@@ -160,6 +160,7 @@ def test_windows_in_worker_processes_give_the_same_result(tmp_path, monkeypatch)
         assert a.nodes == b.nodes and all(torch.equal(x, y) for x, y in zip(a.qs, b.qs))
     assert stacked and max(stacked) == 2           # the two windows' searches were tested together
     assert any(line.startswith("searching: 2 of 2 window(s) running;") for line in lines)
+    assert "window 2/2: preparing a search of frames 6-11 (1500 node tests left)" in lines
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

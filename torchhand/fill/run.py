@@ -143,11 +143,12 @@ def run_window(scene, window: Window, settings: FillSettings, phases=None) -> Wi
     return run_lane(window_lane(scene, window, settings, phases, shared={}))
 
 
-def window_lane(scene, window: Window, settings: FillSettings, phases=None, shared: dict | None = None):
+def window_lane(scene, window: Window, settings: FillSettings, phases=None, shared: dict | None = None, say=None):
     """:func:`run_window` as a lane of :func:`~torchhand.synthesis.multi.search_lanes` (generator): it yields each
     of the window's searches (its pieces, :func:`~torchhand.fill.pieces.pieces_plan`) and returns its
     :class:`WindowRun`, the same as alone. shared: a dict shared by the windows of one scene (their problems reuse
-    one SDF and hand models, so that their searches share node-test calls)."""
+    one SDF and hand models, so that their searches share node-test calls); say: optional callable(line) told as
+    each search is prepared."""
     from ..synthesis.lanes import synthesis_lane
     from .pieces import pieces_plan
 
@@ -158,6 +159,9 @@ def window_lane(scene, window: Window, settings: FillSettings, phases=None, shar
         request = next(plan)
         while True:
             part, max_nodes, stall = request
+            if say is not None:
+                say(f"preparing a search of frames {window.stop - part.T}-{window.stop - 1} ({max_nodes} node tests "
+                    f"left)")
             res = yield from synthesis_lane(part, seed=window.seed, solutions=settings.variants, max_nodes=max_nodes,
                                             node_settings=ns, max_joint_speed=settings.max_joint_speed,
                                             stall_nodes=stall, device=settings.device, shared=shared)
@@ -257,7 +261,12 @@ def _search_together(scene, windows, settings: FillSettings, progress, own: dict
             progress(f"searching: {running} of {len(windows)} window(s) running; {nodes} node tests in {stats.calls} "
                      f"call(s) of {nodes / max(stats.calls, 1):.0f} candidates on average")
 
-    lanes = [window_lane(scene, w, settings, own[w.index], shared) for w in windows]
+    def teller(w: Window):
+        if progress is None:
+            return None
+        return lambda line: progress(f"window {w.index + 1}/{len(windows)}: {line}")
+
+    lanes = [window_lane(scene, w, settings, own[w.index], shared, teller(w)) for w in windows]
     search_lanes(lanes, on_done=done, on_round=on_round)
     return runs
 
