@@ -109,10 +109,10 @@ def test_a_window_that_raises_is_reported_and_the_others_are_kept(tmp_path, monk
 
     real = run_mod.window_lane
 
-    def flaky(scene, window, settings, phases=None, shared=None):
+    def flaky(scene, window, settings, phases=None, shared=None, say=None):
         if window.index == 1:
             raise RuntimeError("boom in the second window")
-        return (yield from real(scene, window, settings, phases, shared))
+        return (yield from real(scene, window, settings, phases, shared, say))
 
     monkeypatch.setattr(run_mod, "window_lane", flaky)
     lines = []
