@@ -127,8 +127,11 @@ def test_pruning_in_one_call_or_many_keeps_the_same_samples(box_turn_problem):
 
     scene, _ = box_turn_problem
     p = build_problem(scene.with_frames(2, 9), torch.Generator().manual_seed(0))     # the approach: 7 key frames
-    outs = [prune_patches(p, torch.Generator().manual_seed(3), per_finger=40, max_rows=m) for m in ("auto", None, 50)]
+    done = {m: [] for m in ("auto", None, 50)}
+    outs = [prune_patches(p, torch.Generator().manual_seed(3), per_finger=40, max_rows=m, progress=done[m].append)
+            for m in done]
     _, keys = _key_frames(p, 0.003, 0.05)
+    assert done["auto"] == [1] * len(keys) and sum(done[None]) == sum(done[50]) == len(keys)
     gen = torch.Generator().manual_seed(3)
     ref = torch.zeros_like(outs[0].ok)
     tried = 0

@@ -67,17 +67,18 @@ def prune_patches(problem: SynthesisProblem, generator: torch.Generator, *, per_
     slower on two cores: the kinematic solve of a call iterates until its slowest row has converged) and all in one
     call on a GPU; a number, calls of at most that many rows; None, one call. A candidate's verdict does not depend
     on the other rows of its call, so the split changes nothing but the time.
-    progress: optional callable(n) advanced once per key frame.
+    progress: optional callable(n) advanced by the key frames finished, after each call (on a CPU: once per key
+    frame).
     """
     of, keys = _key_frames(problem, move_tol, turn_tol)
     H, F, S = problem.H, problem.F, problem.surface.shape[0]
     device = problem.device
     ok = torch.zeros(len(keys), H, F, S, dtype=torch.bool, device=device)
     draws = [_draw(problem, t, per_finger, generator) for t in keys.tolist()]
-    if progress is not None:
-        progress(len(draws))
     rows = [(k, t, sample, active) for k, (t, (sample, active)) in enumerate(zip(keys.tolist(), draws))
             if sample.shape[0]]
+    if progress is not None and len(keys) > len(rows):
+        progress(len(keys) - len(rows))                     # key frames without a candidate: done
     if not rows:
         return InitialSamples(key_of_frame=of.to(device), key_frames=keys.to(device), ok=ok)
     key = torch.cat([torch.full((s.shape[0],), k, device=device) for k, _, s, _ in rows])
@@ -90,7 +91,13 @@ def prune_patches(problem: SynthesisProblem, generator: torch.Generator, *, per_
     else:
         max_rows = None if max_rows == "auto" else max_rows
         split = torch.arange(n, device=device).tensor_split(1 if max_rows is None else -(-n // max_rows))
-    fail = torch.cat([_verdicts(problem, frame[i], sample[i], active[i], settings) for i in split])
+    last = torch.cumsum(torch.tensor([s.shape[0] for _, _, s, _ in rows]), 0) - 1     # each key frame's last row
+    fails = []
+    for i in split:
+        fails.append(_verdicts(problem, frame[i], sample[i], active[i], settings))
+        if progress is not None and i.numel():
+            progress(int(((last >= int(i[0])) & (last <= int(i[-1]))).sum()))
+    fail = torch.cat(fails)
     good = active & ~fail
     for h in range(H):
         for f in range(F):

@@ -11,13 +11,19 @@ as alone. The windows of a capture (:mod:`torchhand.fill`) are such syntheses ov
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import time
 
 from ..scene import Scene
 from .multi import SearchTask, search_lanes
-from .pipeline import _check_arguments, _finish, _Options, _start
+from .pipeline import _check_arguments, _finish, _Options, _start, synthesize
 
 __all__ = ["synthesis_lane", "run_lane"]
+
+_DEFAULTS = {f.name: inspect.signature(synthesize).parameters[f.name].default for f in dataclasses.fields(_Options)}
+"""The options :func:`synthesis_lane` is not given: :func:`~.pipeline.synthesize`'s defaults."""
+
 
 def synthesis_lane(scene: Scene, *, seed: int = 0, progress=None, on_solution=None, shared: dict | None = None,
                    **options):
@@ -26,7 +32,7 @@ def synthesis_lane(scene: Scene, *, seed: int = 0, progress=None, on_solution=No
     :class:`~.pipeline.SynthesisResult` that :func:`~.pipeline.synthesize` (``mount_fit=False``) gives it.
     options: :func:`~.pipeline.synthesize`'s (``solutions``, ``max_nodes``, ``node_settings``, ...); progress,
     on_solution: as there; shared: a dict shared by the lanes of one scene's frame ranges (above), or None."""
-    o = _Options(**options)
+    o = _Options(**{**_DEFAULTS, **options})
     _check_arguments(solutions=o.solutions, trees=o.trees, candidates=o.candidates, max_nodes=o.max_nodes,
                      stall_nodes=o.stall_nodes, time_budget=o.time_budget, max_joint_speed=o.max_joint_speed,
                      epsilon=o.epsilon)

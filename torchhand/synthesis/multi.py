@@ -227,11 +227,8 @@ def _expand_group(runs: dict, members: list, waiting: dict, stats: MultiStats, m
     if max_rows == "auto":
         max_rows = CPU_MAX_ROWS if lead.p.device.type == "cpu" else None
     problem, shift = _stacked(cache, [runs[i].p for i in members], owner)
-    speeds = {tuple(getattr(runs[i].ns, f) for f in _SPEEDS) for i in members}
-    row_speeds = None
-    if len(speeds) > 1:
-        per = torch.tensor([[getattr(runs[i].ns, f) for f in _SPEEDS] for i in members], dtype=torch.float64)
-        row_speeds = per[owner].to(lead.p.device)
+    per = torch.tensor([[getattr(runs[i].ns, f) for f in _SPEEDS] for i in members], dtype=torch.float64)
+    row_speeds = per[owner].to(lead.p.device) if bool((per != per[0]).any()) else None     # only where they differ
     calls = []
     outcome = test_windows(problem, lead.ns, lead.s.slide_speed, joined, [runs[i].stats for i in members], owner,
                            on_call=calls.append, max_rows=max_rows, shift=shift, speeds=row_speeds)

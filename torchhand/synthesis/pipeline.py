@@ -324,23 +324,23 @@ def synthesize(scene, *, solutions: int = 10, max_nodes: int | None = DEFAULT_MA
 
 @dataclass(frozen=True)
 class _Options:
-    """The settings of :func:`synthesize` that every seed of a run shares (the defaults are :func:`synthesize`'s)."""
+    """The settings of :func:`synthesize` that every seed of a run shares."""
 
-    solutions: int = 10
-    max_nodes: int | None = DEFAULT_MAX_NODES
-    time_budget: float | None = None
-    epsilon: float = 10.0
-    strategy: str = "mixed"
-    device: object = "cpu"
-    dtype: torch.dtype = torch.float32
-    trees: int = 16
-    candidates: int = 16
-    reconstruct: bool = True
-    max_joint_speed: float = 8.0
-    keep_unsmoothed: bool = False
-    min_difference: float = math.radians(2.0)
-    node_settings: NodeTestSettings = NodeTestSettings()
-    stall_nodes: int | None = None
+    solutions: int
+    max_nodes: int | None
+    time_budget: float | None
+    epsilon: float
+    strategy: str
+    device: object
+    dtype: torch.dtype
+    trees: int
+    candidates: int
+    reconstruct: bool
+    max_joint_speed: float
+    keep_unsmoothed: bool
+    min_difference: float
+    node_settings: NodeTestSettings
+    stall_nodes: int | None
 
 
 @dataclass(frozen=True)
