@@ -34,6 +34,7 @@ iteration count, so the late iterations cost only the few stragglers.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import torch
@@ -41,6 +42,7 @@ import torch
 from ._cone_polish import newton_fixed_point, newton_nearest_point
 from ._cone_proj import project_cone
 from ._rows import at_least_two
+from .graphs import replayed
 from .status import SolverStatus
 
 _CONVERGED = int(SolverStatus.CONVERGED)
@@ -191,6 +193,16 @@ def _fast_step(w, mu, inv, A, M, aq, alpha: float):
     return r.add_(w, alpha=1 - alpha).add_(z, alpha=alpha)
 
 
+def _fast_steps(steps: int, alpha: float, w, q, inv, *prob):
+    """``steps`` of :func:`_fast_step` from w (B, n), then one :func:`_step` (offset q (B, n); ``prob``: the fields
+    of a :class:`NormalisedProblem`). Returns the last step's (w, z, x)."""
+    p = NormalisedProblem(*prob)
+    aq = (alpha * q).unsqueeze(-1)
+    for _ in range(steps):
+        w = _fast_step(w, p.mu, inv, p.A, p.M, aq, alpha)
+    return _step(w, p, q, alpha, inv)
+
+
 def _optimality(z, y, p: NormalisedProblem, eps: float):
     """Certified convergence test of a cone-feasible z and a dual estimate y: ||A z - b|| <= eps max(1, ||z||)
     (||b|| = 1) and a weak-duality gap <= eps (1 + |c^T z|). Returns (ok (B,), residual vector (B, m))."""
@@ -200,6 +212,22 @@ def _optimality(z, y, p: NormalisedProblem, eps: float):
     size = torch.linalg.vector_norm(z, dim=-1).clamp_min(1)
     ok = (torch.linalg.vector_norm(r_vec, dim=-1) <= eps * size) & (gap <= eps * (1 + obj.abs()))
     return ok, r_vec
+
+
+def _check_values(eps: float, eps_cert: float, w, rho, y_prev, *prob):
+    """The quantities of a check (no host sync): z = Pi_C(w) and u = w - z (B, n), the dual estimate y (B, m),
+    converged (B,), the residual vector (B, m), the certificate margin (B,), infeasible (B,) and the projection
+    regions (B, K) of w; ``prob``: the fields of a :class:`NormalisedProblem`."""
+    p = NormalisedProblem(*prob)
+    z = project_cone(w, p.mu)
+    u = w - z
+    # Dual estimate: the slack s = c - A^T y is -rho u (u lies in the polar cone), so A^T y = c + rho u.
+    y = torch.bmm(p.M.transpose(1, 2), (p.c + rho * u).unsqueeze(-1)).squeeze(-1)
+    converged, r_vec = _optimality(z, y, p, eps)
+    cert = torch.minimum(certificate_margin(y - y_prev, p), certificate_margin(y, p))
+    cert = torch.minimum(cert, certificate_margin(torch.bmm(p.Gp, r_vec.unsqueeze(-1)).squeeze(-1), p))
+    infeasible = ~converged & (cert <= eps_cert)
+    return z, u, y, converged, r_vec, cert, infeasible, regions(w, p.mu)
 
 
 class _Work(NamedTuple):
@@ -253,24 +281,17 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
             # Checks every check_every iterations, then every ~20% of the iterations done (stragglers are few).
             interval = max(settings.check_every, (it // (5 * settings.check_every)) * settings.check_every)
             steps = min(interval, settings.max_iters - it)
-            aq = (alpha * q).unsqueeze(-1)
-            for _ in range(steps - 1):
-                w = _fast_step(w, p.mu, inv, p.A, p.M, aq, alpha)
-            w, z_prev, x = _step(w, p, q, alpha, inv)
+            # the steps between two checks: one graph replay on CUDA (.graphs)
+            w, z_prev, x = replayed(("cone", steps - 1, alpha), functools.partial(_fast_steps, steps - 1, alpha),
+                                    w, q, inv, *p, rows=w.shape[0])
             it += steps
         iterate = True
 
         # --- check (the only host syncs): convergence, infeasibility, polishing, rho, compaction -------------
-        z = project_cone(w, p.mu)
-        u = w - z
-        # Dual estimate: the slack s = c - A^T y is -rho u (u lies in the polar cone), so A^T y = c + rho u.
-        y = torch.bmm(p.M.transpose(1, 2), (p.c + rho * u).unsqueeze(-1)).squeeze(-1)
-        converged, r_vec = _optimality(z, y, p, settings.eps)
-        cert = torch.minimum(certificate_margin(y - st.y_prev, p), certificate_margin(y, p))
-        cert = torch.minimum(cert, certificate_margin(torch.bmm(p.Gp, r_vec.unsqueeze(-1)).squeeze(-1), p))
-        infeasible = ~converged & (cert <= settings.eps_cert)
-
-        kind = regions(w, p.mu)
+        z, u, y, converged, r_vec, cert, infeasible, kind = replayed(
+            ("cone check", settings.eps, settings.eps_cert), functools.partial(_check_values, settings.eps,
+                                                                               settings.eps_cert),
+            w, rho, st.y_prev, *p, rows=w.shape[0])
         polish_kind, polish_it, dist_it = st.polish_kind, st.polish_it, st.dist_it
         if settings.polish and (it >= settings.polish_from or it == 0):
             # Newton polish of the fixed point where the region pattern has been stable for a check interval;

@@ -4,7 +4,9 @@
 a frame of the hold, every candidate guiding all five fingers to pruned patch samples (five IK targets,
 penetration resolution, a force solve with up to 20 hand and 4 table contacts), warm-started from the previous
 frame's solve as in the search. Rows at several batch
-sizes N, median of ``repeats`` runs; the reference in the same run is the same test one candidate at a time
+sizes N, median of ``repeats`` runs, with (on the CPU) what one call launches, counted (:func:`launch_counts`:
+``ops`` eager, ``launches`` and ``syncs`` on the GPU's paths with their loops as graph replays; on a GPU the
+row has the graph captures and replays instead); the reference in the same run is the same test one candidate at a time
 (N = 1 in a Python loop), and the paper's figure (about 5 node tests per second: 200 ms kinematic + 5-10 ms
 dynamic test per frame, 2.8 GHz Core 2 Duo) is printed beside it.
 
@@ -114,6 +116,44 @@ def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: in
     return problem, lambda: run_node_test(problem, t, q_prev, first, guides, prev_mask=warm.c_mask)
 
 
+_VIEWS = ("aten.slice.", "aten.select.", "aten.unsqueeze", "aten.view.", "aten.squeeze", "aten.expand.",
+          "aten._unsafe_view", "aten.transpose.", "aten.t.", "aten.permute.", "aten.alias", "aten.diagonal.",
+          "aten.unbind", "aten.split.", "aten.as_strided.", "aten.detach")
+_SYNCS = ("aten._local_scalar_dense", "aten.nonzero", "aten.masked_select")
+
+
+def launch_counts(run) -> dict:
+    """What one call of ``run`` launches, counted on its device's operator dispatch (no timing): ``ops``, the
+    operators that are kernel launches on a GPU (views excluded) on this device's paths; ``launches``, the same
+    on the GPU's paths (:func:`torchhand.kernels.graphs.gpu_paths`), a function given to ``replayed`` counting
+    as one launch (its graph's replay); ``syncs``, the host reads left on the GPU's paths (``.item()``, ``nonzero``,
+    ``masked_select``; on the CPU also checks that a GPU skips)."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    from torchhand.kernels import graphs
+
+    class Count(TorchDispatchMode):
+        def __init__(self):
+            super().__init__()
+            self.ops = self.outside = self.syncs = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            name = str(func)
+            if not name.startswith(_VIEWS):
+                self.ops += 1
+                if not graphs.in_replayed():
+                    self.outside += 1
+                    self.syncs += name.startswith(_SYNCS)
+            return func(*args, **(kwargs or {}))
+
+    with Count() as eager:
+        run()
+    regions = graphs.STATS["regions"]
+    with graphs.gpu_paths(), Count() as gpu:
+        run()
+    return {"ops": eager.ops, "launches": gpu.outside + graphs.STATS["regions"] - regions, "syncs": gpu.syncs}
+
+
 def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024), repeats: int = 5,
                 hand: str = "default") -> list[dict]:
     rows = []
@@ -129,14 +169,18 @@ def bench_nodes(device: str = "cpu", dtype=torch.float32, batches=(64, 256, 1024
     seq_rate = loop / t["median_s"]
     rows.append({"name": "node test, one candidate at a time", "hand": hand, "device": device, "dtype": dname, "N": 1,
                  **t, "nodes_per_s": seq_rate, "vs_sequential": 1.0, "vs_paper": seq_rate / PAPER_NODES_PER_S})
+    from torchhand.kernels import graphs
     for N in batches:
         _, run = node_batch(N, device, dtype, hand=hand)
+        before = dict(graphs.STATS)
         t = time_fn(run, device, repeats=repeats, warmup=1)
         rate = N / t["median_s"]
+        used = {k: graphs.STATS[k] - before.get(k, 0) for k in ("captures", "replays", "eager", "failed")}
         res = run()
+        counts = launch_counts(run) if device == "cpu" else {"graphs": used}
         rows.append({"name": "node test, batched", "hand": hand, "device": device, "dtype": dname, "N": N, **t,
                      "nodes_per_s": rate, "vs_sequential": rate / seq_rate, "vs_paper": rate / PAPER_NODES_PER_S,
-                     "feasible_frac": float(res.feasible.double().mean())})
+                     "feasible_frac": float(res.feasible.double().mean()), **counts})
     rows.append({"name": "Ye & Liu 2012 (paper, Core 2 Duo, one thread)", "device": "cpu", "N": 1,
                  "nodes_per_s": PAPER_NODES_PER_S, "vs_paper": 1.0})
     return rows
@@ -368,8 +412,8 @@ def main(argv=None) -> int:
         rows = [r for hand in (a.hands or ["default"])
                 for r in bench_nodes(a.device, getattr(torch, a.dtype), a.batch, a.repeats, hand=hand)]
         print("\n[node tests]")
-        print_table(rows, ["name", "hand", "device", "dtype", "N", "median_s", "iqr_s", "nodes_per_s",
-                           "vs_sequential", "vs_paper", "feasible_frac"])
+        print_table(rows, ["name", "hand", "device", "dtype", "N", "median_s", "iqr_s", "nodes_per_s", "ops",
+                           "launches", "syncs", "vs_sequential", "vs_paper", "feasible_frac"])
         out["nodes"] = rows
     if a.suite in ("scenes", "all"):
         rows = [r for seed in a.seeds

@@ -47,7 +47,7 @@ step() {   # step NAME COMMAND...: run one step with its log, remember the first
 for s in $STEPS; do
   case $s in
     tests) step tests "$PY" -m pytest -q -p no:cacheprovider tests/kernels tests/torchhand/test_multi_search.py \
-             tests/torchhand/test_step.py tests/torchhand/test_fill_pieces.py -k cuda ;;
+             tests/torchhand/test_step.py tests/torchhand/test_fill_pieces.py tests/torchhand/test_node_graphs.py -k cuda ;;
     nodes) # shellcheck disable=SC2086
            step nodes "$PY" scripts/bench_synthesis.py nodes --device "$DEVICE" --batch $NODE_BATCH \
              --json "$OUT/nodes.json" ;;

@@ -161,7 +161,8 @@ def _block_distance(p: torch.Tensor, extent: tuple, top: float) -> tuple[torch.T
     inner = q.amax(-1)
     sd = out_len + inner.clamp_max(0)
     # gradient: outside, the direction from the nearest box point; inside, the axis of the nearest face
-    face = torch.nn.functional.one_hot(q.argmax(-1), 3).to(p.dtype)
+    # (a comparison, not one_hot: one_hot checks its indices on the host)
+    face = (q.argmax(-1, keepdim=True) == torch.arange(3, device=p.device)).to(p.dtype)
     n_out = outside / out_len.clamp_min(1e-300)[..., None]
     normal = torch.where((out_len > 0)[..., None], n_out, face) * sign
     return sd, normal

@@ -9,110 +9,9 @@ from torchhand.kernels._rows import at_least_two
 
 from ..hand.collision import hand_object_penetration
 from .problem import SynthesisProblem
-from ._node_geometry import _axis_points, _finger_depth, _rotate, _transform, capsule_point_facing
+from ._node_geometry import _finger_depth, _rotate, _transform, capsule_point_facing
+from ._node_lm import lm_solve
 from ._node_records import Guides, NodeTestSettings
-
-
-def _lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, slot_local, target, weight,
-              nail_target, nail_on, iters: int, s: NodeTestSettings, roll=None) -> torch.Tensor:
-    """Projected Levenberg–Marquardt on weighted point targets, the nail condition and non-penetration.
-
-    root, T_obj, T_inv (N, 4, 4); q, lo, hi, anchor (N, D); slot_link (P,) long; slot_local (N, P, 3); target
-    (N, P, 3) world; weight (N, P) (0 = slot unused); nail_target (N, F, 3) outward unit normals; nail_on (N, F);
-    roll (N, P) bool or None: slots whose hand point is re-chosen every iteration as the point of the link's capsule
-    facing the target (a rolling contact: the residual is the capsule's distance to it, ICP-like Gauss-Newton).
-    Non-penetration: for points along every finger link's capsule axis, the one-sided residual
-    max(0, radius + margin - sd(point)) with its SDF-gradient Jacobian.
-    """
-    N, D = q.shape
-    F = hand.num_fingers
-    P = slot_link.shape[0]
-    nail_local = hand.fingertip + hand.nail_normal                      # (F, 3), distal frame
-    ax_link, ax_local, ax_r = _axis_points(hand)
-    link_all = torch.cat([slot_link, hand.distal_link, hand.distal_link, ax_link])
-    eye = torch.eye(D, dtype=q.dtype, device=q.device)
-    reg = s.reg_weight ** 2
-    R_inv, t_inv = T_inv[:, None, :3, :3], T_inv[:, None, :3, 3]
-    # The problem separates by finger (every joint moves one finger's links, every residual depends on one finger's
-    # joints; the palm's slot is constant): damping and step acceptance are per finger (group F: what belongs to no
-    # finger), so one finger's rejected step does not hold back the others, in one batched solve.
-    G = F + 1
-    lf = hand.link_finger
-    table, ground = problem.table_height, problem.ground
-    ax_group = torch.where(lf[ax_link] >= 0, lf[ax_link], F)
-    solids = table is not None or ground is not None
-    res_group = torch.cat([torch.where(lf[slot_link] >= 0, lf[slot_link], F).repeat_interleave(3),
-                           torch.arange(F, device=q.device), ax_group] + ([ax_group] if solids else []))
-    jf = hand.link_finger[hand.chain.joint_link]
-    joint_group = torch.where(jf >= 0, jf, F)                            # (D,)
-    free = (hi > lo).to(q.dtype)                                         # (N, D)
-    lam = torch.full((N, G), 1e-4, dtype=q.dtype, device=q.device)
-    best_q, best_cost = q, torch.full((N, G), float("inf"), dtype=q.dtype, device=q.device)
-    stopped = torch.zeros(N, dtype=torch.bool, device=q.device)
-    best_A = best_g = None
-    for it in range(iters + 1):
-        if roll is not None:
-            facing = capsule_point_facing(hand, hand.forward_kinematics(q, root), slot_link.expand(N, P), target)
-            slot_local = torch.where(roll[..., None], facing, slot_local)
-        local = torch.cat([slot_local, hand.fingertip.expand(N, F, 3), nail_local.expand(N, F, 3),
-                           ax_local.expand(N, ax_link.shape[0], 3)], 1)
-        _, x, J = hand.kinematics(q, link_all, local, root)
-        J = J * free[:, None, None, :]          # a joint whose box is a point (a locked wrist) couples no finger
-        r = (x[:, :P] - target) * weight[..., None]                         # (N, P, 3)
-        Jw = J[:, :P] * weight[..., None, None]
-        g_vec = x[:, P + F:P + 2 * F] - x[:, P:P + F]                       # nail normals, world (N, F, 3)
-        Jg = J[:, P + F:P + 2 * F] - J[:, P:P + F]                          # (N, F, 3, D)
-        c = (g_vec * nail_target).sum(-1)                                   # (N, F)
-        viol = nail_on & (c < s.nail_cos)
-        rn = torch.where(viol, (c - s.nail_cos) * s.nail_weight, torch.zeros_like(c))
-        Jn = (nail_target.unsqueeze(-1) * Jg).sum(-2) * (s.nail_weight * viol.to(q.dtype))[..., None]  # (N, F, D)
-        xa = x[:, P + 2 * F:]
-        sd, grad = problem.sdf.query_with_grad((R_inv @ xa.unsqueeze(-1)).squeeze(-1) + t_inv)
-        g_world = (T_obj[:, None, :3, :3] @ grad.unsqueeze(-1)).squeeze(-1)
-        ra = (ax_r + s.push_margin - sd).clamp_min(0)                       # (N, A)
-        on = (ra > 0).to(q.dtype)
-        Ja = -(g_world.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * on[..., None]   # (N, A, D)
-        Jf, rf = [Jw.reshape(N, -1, D), Jn, Ja], [r.reshape(N, -1), rn, ra]
-        if table is not None:
-            # the table: every finger capsule stays above the plane z = table (one-sided, as the object)
-            rt = (ax_r + s.push_margin - (xa[..., 2] - table)).clamp_min(0)         # (N, A)
-            Jf.append(-J[:, P + 2 * F:, 2] * (rt > 0).to(q.dtype)[..., None])
-            rf.append(rt)
-        elif ground is not None:
-            # a table block and a floor: the same, along the solids' outward normal
-            gsd, gn = ground.point_distance(xa)                                     # (N, A), (N, A, 3)
-            rt = (ax_r + s.push_margin - gsd).clamp_min(0)
-            Jf.append(-(gn.unsqueeze(-1) * J[:, P + 2 * F:]).sum(-2) * (rt > 0).to(q.dtype)[..., None])
-            rf.append(rt)
-        Jf, rf = torch.cat(Jf, 1), torch.cat(rf, 1)
-        cost = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, res_group, rf * rf)
-        cost = cost.index_add_(1, joint_group, reg * (q - anchor) ** 2)   # (N, G)
-        A = Jf.transpose(1, 2) @ Jf + reg * eye
-        g = (Jf.transpose(1, 2) @ rf.unsqueeze(-1)).squeeze(-1) + reg * (q - anchor)
-        better = cost <= best_cost                                          # (N, G)
-        lam = torch.where(better, lam / 3, lam * 10).clamp(1e-9, 1e3)
-        best_cost = torch.where(better, cost, best_cost)
-        bj = better[:, joint_group] & ~stopped[:, None]                     # (N, D) per joint
-        best_q = torch.where(bj, q, best_q)
-        # A is block-diagonal by finger, so replacing whole rows keeps each finger's block consistent
-        best_A = A if best_A is None else torch.where(bj[..., None], A, best_A)
-        best_g = g if best_g is None else torch.where(bj, g, best_g)
-        diag = best_A.diagonal(dim1=1, dim2=2)                              # (N, D)
-        scale = torch.zeros(N, G, dtype=q.dtype, device=q.device).index_add_(1, joint_group, diag)
-        count = torch.zeros(G, dtype=q.dtype, device=q.device).index_add_(0, joint_group, torch.ones_like(diag[0]))
-        damp = (lam * scale / count.clamp_min(1))[:, joint_group] + s.damping     # (N, D)
-        Ad = best_A + torch.diag_embed(damp)
-        L, _ = torch.linalg.cholesky_ex(Ad)
-        # two batched triangular solves (cholesky_solve on CUDA loops over the batch on the host)
-        y = torch.linalg.solve_triangular(L, -best_g.unsqueeze(-1), upper=False)
-        step = torch.linalg.solve_triangular(L.transpose(-1, -2), y, upper=True).squeeze(-1)
-        q = torch.minimum(torch.maximum(best_q + step, lo), hi)
-        # every 4 iterations a row whose steps fell below 1e-4 rad keeps its pose (its answer is its own, whatever
-        # the other rows of the batch do); once all have: stop (a host sync)
-        stopped = stopped | ((q - best_q).abs().amax(-1) < 1e-4) if it % 4 == 3 else stopped
-        if it % 4 == 3 and bool(stopped.all()):
-            break
-    return best_q
 
 
 def guide_targets(problem: SynthesisProblem, t: torch.Tensor, obj: torch.Tensor, s: NodeTestSettings):
@@ -187,7 +86,7 @@ def _hand_kinematic_test(problem: SynthesisProblem, h: int, t: torch.Tensor, q_p
     g_roll = None if roll_f is None else (onehot * roll_f[..., None].to(dtype)).sum(1) > 0       # (N, L)
 
     def solve(rows, start):
-        return _lm_solve(problem, hand, root[rows], T_obj[rows], T_inv[rows], start, lo[rows], hi[rows], start,
+        return lm_solve(problem, hand, root[rows], T_obj[rows], T_inv[rows], start, lo[rows], hi[rows], start,
                          slot_link, g_local[rows], g_target[rows], g_weight[rows], n_out[rows], act[rows],
                          s.ik_iters, s, roll=None if g_roll is None else g_roll[rows])
 
