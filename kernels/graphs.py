@@ -17,7 +17,8 @@ one launch.
   good (counted in :data:`STATS`); the answer returned is always the eager one or a replay proved equal to it.
 - Later calls copy their inputs into the graph's static buffers, replay, and return clones of the outputs.
 - At most :data:`MAX_GRAPHS` graphs are kept (least recently used dropped); they share one memory pool.
-- ``TORCHHAND_CUDA_GRAPHS=0`` in the environment turns replay off (every call eager).
+- :func:`set_enabled` (False) turns replay off (every call eager); the command line does so for
+  ``TORCHHAND_CUDA_GRAPHS=0`` in the environment.
 
 :func:`no_host_sync` is the check, on any device: inside it, an operation that needs the host to wait for the
 device (on a GPU) raises :class:`HostSyncError`. Tests run the captured loops under it on the CPU, so a loop that
@@ -26,24 +27,22 @@ could not be captured is found without a GPU.
 
 from __future__ import annotations
 
-import contextlib
-import os
-from collections import Counter, OrderedDict
 from typing import Callable
 
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 __all__ = ["replayed", "padded", "bucket", "no_host_sync", "HostSyncError", "STATS", "MAX_GRAPHS", "clear",
-           "in_replayed", "gpu_paths", "fixed_loops"]
+           "in_replayed", "gpu_paths", "fixed_loops", "set_enabled"]
 
 MAX_GRAPHS = 64
 # regions (calls of a function given to replayed(), on any device), captures, replays, eager calls on CUDA (a key
 # whose capture failed or differed), failed captures
-STATS: Counter = Counter()
-_GRAPHS: "OrderedDict[tuple, object]" = OrderedDict()
+STATS: dict = {"regions": 0, "captures": 0, "replays": 0, "eager": 0, "failed": 0}
+_GRAPHS: dict = {}          # insertion order = least recently used first
 _EAGER = object()           # a key whose capture failed: run eagerly
 _POOL = None
+_ENABLED = True            # set_enabled()
 _FORCE = False             # gpu_paths()
 _CHECK = False             # gpu_paths(check_syncs=True)
 _DEPTH = 0                  # > 0 while a function given to replayed() runs (for op counting)
@@ -74,18 +73,32 @@ class no_host_sync(TorchDispatchMode):
         return func(*args, **(kwargs or {}))
 
 
-@contextlib.contextmanager
-def gpu_paths(check_syncs: bool = False):
-    """Within this context, :func:`fixed_loops` is true on every device: the CPU runs the loops as a GPU does
-    (for the tests, and to count what a GPU would launch); check_syncs: every function given to
+class gpu_paths:
+    """Context manager: within it, :func:`fixed_loops` is true on every device, so the CPU runs the loops as a GPU
+    does (for the tests, and to count what a GPU would launch); check_syncs: every function given to
     :func:`replayed` off CUDA runs under :class:`no_host_sync` (a loop that could not be captured raises)."""
-    global _FORCE, _CHECK
-    old = _FORCE, _CHECK
-    _FORCE, _CHECK = True, check_syncs
-    try:
-        yield
-    finally:
-        _FORCE, _CHECK = old
+
+    def __init__(self, check_syncs: bool = False):
+        self.check_syncs = check_syncs
+
+    def __enter__(self):
+        global _FORCE, _CHECK
+        self.old = _FORCE, _CHECK
+        _FORCE, _CHECK = True, self.check_syncs
+        return self
+
+    def __exit__(self, *exc):
+        global _FORCE, _CHECK
+        _FORCE, _CHECK = self.old
+        return False
+
+
+def set_enabled(flag: bool) -> bool:
+    """Turn graph replay on or off (off: every call eager, as on the CPU); returns the previous setting. The
+    command line reads ``TORCHHAND_CUDA_GRAPHS=0`` from the environment."""
+    global _ENABLED
+    old, _ENABLED = _ENABLED, bool(flag)
+    return old
 
 
 def fixed_loops(device: torch.device) -> bool:
@@ -102,10 +115,6 @@ def in_replayed() -> bool:
 def clear() -> None:
     """Drop every captured graph and every key marked eager."""
     _GRAPHS.clear()
-
-
-def _enabled() -> bool:
-    return os.environ.get("TORCHHAND_CUDA_GRAPHS", "1") != "0"
 
 
 def _signature(tensors) -> tuple:
@@ -150,7 +159,7 @@ def replayed(key: tuple, fn: Callable, *tensors: torch.Tensor, rows: int | None 
     module docstring). rows: every argument and output is batch-first with this many rows, independent of one
     another: on CUDA the batch is padded to :func:`bucket` (rows) (fewer shapes, fewer captures). Returns what
     ``fn`` returns (tensors the caller owns)."""
-    if not tensors or tensors[0].device.type != "cuda" or not _enabled():
+    if not tensors or tensors[0].device.type != "cuda" or not _ENABLED:
         if _CHECK:
             with no_host_sync():
                 return _call(fn, tensors)
@@ -166,9 +175,9 @@ def replayed(key: tuple, fn: Callable, *tensors: torch.Tensor, rows: int | None 
         out, entry = _capture(fn, tensors)
         _GRAPHS[full] = entry
         while len(_GRAPHS) > MAX_GRAPHS:
-            _GRAPHS.popitem(last=False)
+            del _GRAPHS[next(iter(_GRAPHS))]
         return out
-    _GRAPHS.move_to_end(full)
+    _GRAPHS[full] = _GRAPHS.pop(full)                      # now the most recently used
     graph, static_in, static_out, single, _ = entry
     for buf, x in zip(static_in, tensors):
         buf.copy_(x)

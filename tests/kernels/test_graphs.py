@@ -70,6 +70,22 @@ def test_gpu_paths_with_sync_checks_raise_inside_replayed_functions():
     assert replayed(("test", 2), lambda x: x[x > 0].sum(), x) == x[x > 0].sum()
 
 
+def test_the_command_line_reads_the_graph_setting(monkeypatch):
+    from torchhand.cli._common import apply_graph_setting
+    from torchhand.errors import InputValueError
+
+    try:
+        monkeypatch.setenv("TORCHHAND_CUDA_GRAPHS", "0")
+        assert apply_graph_setting() is False and graphs.set_enabled(False) is False
+        monkeypatch.setenv("TORCHHAND_CUDA_GRAPHS", "yes")
+        with pytest.raises(InputValueError, match="TORCHHAND_CUDA_GRAPHS"):
+            apply_graph_setting()
+        monkeypatch.delenv("TORCHHAND_CUDA_GRAPHS")
+        assert apply_graph_setting() is True and graphs.set_enabled(True) is True
+    finally:
+        graphs.set_enabled(True)
+
+
 def test_buckets_are_few_and_cover_every_size():
     sizes = [bucket(n) for n in range(1, 20000)]
     assert all(s >= n for n, s in zip(range(1, 20000), sizes))

@@ -21,7 +21,7 @@ from torchhand.synthesis.problem import build_problem
 def _pruned(scene_name: str, device: str = "cpu"):
     gen = torch.Generator().manual_seed(0)
     problem = build_problem(torchhand.load_scene(scene_name), gen, device=device)
-    return problem, prune_patches(problem, gen)
+    return problem, prune_patches(problem, gen, per_finger=64)   # fewer samples than a search tries
 
 
 def _batch(scene_name: str, N: int, frame: int, roll: bool, seed: int = 0, device: str = "cpu"):
@@ -65,14 +65,14 @@ def test_gpu_paths_are_sync_free_and_answer_as_the_cpu_paths(scene_name, roll):
     for f in dataclasses.fields(want):
         assert torch.equal(getattr(got, f.name), getattr(want, f.name)), f.name
     # the test had work to do: one region per LM solve (and its retry), and where candidates reach the dynamic
-    # test, the force solve's steps and checks (the rolling guides of this frame all fail kinematically)
+    # test, the force solve's steps and checks; the static guides reach it and some pass
     solved = bool(((want.cause != CAUSE_KINEMATIC) & (want.cause != CAUSE_FINGERS)).any())
     assert graphs.STATS["regions"] - before >= (3 if solved else 1)
-    assert solved == (not roll) and (bool(want.feasible.any()) or roll)
+    assert roll or (solved and bool(want.feasible.any()))
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
-def test_cuda_node_test_replays_its_graphs_and_answers_as_without_them(monkeypatch):
+def test_cuda_node_test_replays_its_graphs_and_answers_as_without_them():
     graphs.clear()
     problem, args, prev_mask = _batch("box-turn", 100, 30, False, device="cuda")
     s0 = dict(graphs.STATS)
@@ -82,7 +82,10 @@ def test_cuda_node_test_replays_its_graphs_and_answers_as_without_them(monkeypat
     assert graphs.STATS["failed"] == s0.get("failed", 0)
     for f in dataclasses.fields(first):
         assert torch.equal(getattr(first, f.name), getattr(second, f.name)), f.name
-    monkeypatch.setenv("TORCHHAND_CUDA_GRAPHS", "0")                # eager, unpadded
-    plain = run_node_test(problem, *args, prev_mask=prev_mask)
+    graphs.set_enabled(False)                                       # eager, unpadded
+    try:
+        plain = run_node_test(problem, *args, prev_mask=prev_mask)
+    finally:
+        graphs.set_enabled(True)
     assert torch.equal(plain.cause, first.cause)
     torch.testing.assert_close(plain.q, first.q, rtol=0, atol=1e-4)

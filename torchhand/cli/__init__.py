@@ -14,6 +14,7 @@ import sys
 
 from .._numerics import MODES, pin_for_command
 from ..errors import TorchhandError
+from ._common import apply_graph_setting
 
 # Subcommand modules, in the order they appear in --help. A module that is not there yet is skipped.
 _COMMANDS = ("scene", "hand", "inspect", "synthesize", "fill", "check", "render", "plot", "splice", "export", "view",
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # Numeric code paths first: torch and NumPy read them when they load (torchhand/_numerics.py).
         pin_for_command(sys.argv[1:] if argv is None else argv)
+        apply_graph_setting()
     except TorchhandError as err:
         print(f"torchhand: error: {err}", file=sys.stderr)
         return 2

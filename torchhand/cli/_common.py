@@ -44,6 +44,18 @@ def apply_threads(value: int | None) -> int:
     return value
 
 
+def apply_graph_setting() -> bool:
+    """CUDA graph replay of the solvers' loops (``torchhand.kernels.graphs``) on unless ``$TORCHHAND_CUDA_GRAPHS``
+    is ``0``; returns whether it is on."""
+    from torchhand.kernels import graphs
+
+    env = os.environ.get("TORCHHAND_CUDA_GRAPHS", "1").strip()
+    if env not in ("0", "1"):
+        raise InputValueError(f"TORCHHAND_CUDA_GRAPHS: expected 0 or 1, got {env!r}")
+    graphs.set_enabled(env == "1")
+    return env == "1"
+
+
 class Progress:
     """Progress of a long command: a tqdm bar on a terminal, otherwise a plain line on stderr every ``every``
     seconds (and at each new stage). ``update(stage, text, fraction=None)``; ``close()``."""

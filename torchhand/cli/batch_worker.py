@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ..batch.worker import RUN_FLAGS, Tee, record_unsuitable, write_check
 from . import main as cli
+from ._common import apply_graph_setting
 
 __all__ = ["main"]
 
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- METHOD SCENE [options]")
     a = p.parse_args(argv)
+    apply_graph_setting()
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
     if a.each:
         return _group(cmd, a)

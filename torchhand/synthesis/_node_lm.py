@@ -180,24 +180,24 @@ def lm_solve(problem, hand, root, T_obj, T_inv, q, lo, hi, anchor, slot_link, sl
     st = _State(q, torch.full((N, c.G), 1e-4, dtype=q.dtype, device=q.device), q, inf,
                 torch.zeros(N, dtype=torch.bool, device=q.device), None, None)
     args = (root, T_obj, T_inv, lo, hi, anchor, free, slot_local, target, weight, nail_target, nail_on)
-    st = _iteration(c, 0, st, *args, roll)
     if not fixed_loops(q.device):
-        for it in range(1, iters + 1):
+        for it in range(iters + 1):
             st = _iteration(c, it, st, *args, roll)
             if it % 4 == 3 and bool(st.stopped.all()):       # every row keeps its pose from here on
                 break
         return st.best_q
+    # iteration 0 takes its A and g as they are: these zeros only give the graph its inputs' shapes
+    st = st._replace(best_A=q.new_zeros(N, D, D), best_g=q.new_zeros(N, D))
     extra = () if roll is None else (roll,)
     return replayed(c.key(iters, roll is not None), functools.partial(_iterations, c, iters), *st, *args, *extra,
                     rows=N)
 
 
 def _iterations(c: _Const, iters: int, *tensors) -> torch.Tensor:
-    """Iterations 1 .. iters from the state after iteration 0, all of them (no stop: see the module docstring);
-    tensors: the 7 fields of :class:`_State`, the 12 arguments of :func:`_iteration`, and ``roll`` if any.
-    Returns best_q (N, D)."""
+    """Iterations 0 .. iters, all of them (no stop: see the module docstring); tensors: the 7 fields of
+    :class:`_State`, the 12 arguments of :func:`_iteration`, and ``roll`` if any. Returns best_q (N, D)."""
     st, args = _State(*tensors[:7]), tensors[7:19]
     roll = tensors[19] if len(tensors) > 19 else None
-    for it in range(1, iters + 1):
+    for it in range(iters + 1):
         st = _iteration(c, it, st, *args, roll)
     return st.best_q
