@@ -17,7 +17,7 @@ TESTS=(
   tests/kernels/test_convex_qp.py
   tests/torchhand/test_manipulate.py tests/torchhand/test_manipulate_added.py tests/torchhand/test_manipulate_extras.py
   tests/torchhand/test_liu_scenes.py tests/torchhand/test_liu_roll.py
-  tests/torchhand/test_mount.py tests/render/test_render.py
+  tests/torchhand/test_mount.py tests/render/test_render.py tests/torchhand/test_node_graphs.py
 )
 echo "test_other_cpu: $OTHER_CPU"
 # the files spread over TORCHHAND_TEST_WORKERS processes as in scripts/test.sh
