@@ -80,6 +80,8 @@ class _Const:
             0, self.joint_group, torch.ones(self.D, dtype=dtype, device=device))
 
     def key(self, iters: int, roll: bool) -> tuple:
+        """The graph cache key: everything an iteration reads that is not one of its tensors. ``slot_link`` is
+        every link of the hand (the only caller's), so the hand names it; the shapes complete the key."""
         return ("lm", _Ref(self.hand), _Ref(self.sdf), _Ref(self.ground), self.table, self.s, iters, roll)
 
 
