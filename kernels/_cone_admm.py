@@ -192,26 +192,6 @@ def _fast_step(w, mu, inv, A, M, aq, alpha: float):
     return r.add_(w, alpha=1 - alpha).add_(z, alpha=alpha)
 
 
-class _FastSteps(NamedTuple):
-    """:func:`_fast_steps` with its counts bound (a function for :func:`.graphs.replayed`)."""
-
-    steps: int
-    alpha: float
-
-    def __call__(self, *tensors):
-        return _fast_steps(self.steps, self.alpha, *tensors)
-
-
-class _CheckValues(NamedTuple):
-    """:func:`_check_values` with its tolerances bound."""
-
-    eps: float
-    eps_cert: float
-
-    def __call__(self, *tensors):
-        return _check_values(self.eps, self.eps_cert, *tensors)
-
-
 def _fast_steps(steps: int, alpha: float, w, q, inv, *prob):
     """``steps`` of :func:`_fast_step` from w (B, n), then one :func:`_step` (offset q (B, n); ``prob``: the fields
     of a :class:`NormalisedProblem`). Returns the last step's (w, z, x)."""
@@ -301,15 +281,15 @@ def admm(prob: NormalisedProblem, w0: torch.Tensor, settings: AdmmSettings,
             interval = max(settings.check_every, (it // (5 * settings.check_every)) * settings.check_every)
             steps = min(interval, settings.max_iters - it)
             # the steps between two checks: one graph replay on CUDA (.graphs)
-            w, z_prev, x = replayed(("cone", steps - 1, alpha), _FastSteps(steps - 1, alpha), w, q, inv, *p,
-                                    rows=w.shape[0])
+            w, z_prev, x = replayed(("cone", steps - 1, alpha), lambda *t: _fast_steps(steps - 1, alpha, *t),
+                                    w, q, inv, *p, rows=w.shape[0])
             it += steps
         iterate = True
 
         # --- check (the only host syncs): convergence, infeasibility, polishing, rho, compaction -------------
         z, u, y, converged, r_vec, cert, infeasible, kind = replayed(
-            ("cone check", settings.eps, settings.eps_cert), _CheckValues(settings.eps, settings.eps_cert),
-            w, rho, st.y_prev, *p, rows=w.shape[0])
+            ("cone check", settings.eps, settings.eps_cert),
+            lambda *t: _check_values(settings.eps, settings.eps_cert, *t), w, rho, st.y_prev, *p, rows=w.shape[0])
         polish_kind, polish_it, dist_it = st.polish_kind, st.polish_it, st.dist_it
         if settings.polish and (it >= settings.polish_from or it == 0):
             # Newton polish of the fixed point where the region pattern has been stable for a check interval;

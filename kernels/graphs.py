@@ -32,7 +32,7 @@ from typing import Callable
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
-__all__ = ["replayed", "padded", "bucket", "no_host_sync", "HostSyncError", "STATS", "MAX_GRAPHS", "clear",
+__all__ = ["replayed", "padded", "bucket", "no_host_sync", "host_sync", "HostSyncError", "STATS", "MAX_GRAPHS", "clear",
            "in_replayed", "gpu_paths", "fixed_loops", "set_enabled"]
 
 MAX_GRAPHS = 64
@@ -56,20 +56,28 @@ class HostSyncError(RuntimeError):
     """An operation inside :func:`no_host_sync` needs a host synchronisation (on a GPU)."""
 
 
+def host_sync(func, args=(), kwargs=None) -> str | None:
+    """Why the operator call ``func(*args, **kwargs)`` (as a dispatch mode sees it) synchronises with the host on a
+    GPU, or None: reading a value, a data-dependent output shape, boolean-mask indexing, a copy between devices."""
+    name = str(func)
+    if name.startswith(_SYNC_OPS):
+        return f"{name} synchronises with the host"
+    if name.startswith("aten.index.Tensor") and any(i is not None and i.dtype == torch.bool for i in args[1]):
+        return "boolean-mask indexing synchronises with the host"
+    if name.startswith("aten._to_copy") and "device" in (kwargs or {}) and args and \
+            torch.device(kwargs["device"]) != args[0].device:
+        return f"a copy from {args[0].device} to {kwargs['device']} synchronises with the host"
+    return None
+
+
 class no_host_sync(TorchDispatchMode):
     """Context manager: raise :class:`HostSyncError` at the first operation that would synchronise with the host
-    on a GPU (reading a value, a data-dependent output shape, boolean-mask indexing, a copy between devices)."""
+    on a GPU (:func:`host_sync`)."""
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-        name = str(func)
-        if name.startswith(_SYNC_OPS):
-            raise HostSyncError(f"{name} synchronises with the host")
-        if name.startswith("aten.index.Tensor") and any(
-                i is not None and i.dtype == torch.bool for i in args[1]):
-            raise HostSyncError("boolean-mask indexing synchronises with the host")
-        if name.startswith("aten._to_copy") and "device" in (kwargs or {}) and args and \
-                torch.device(kwargs["device"]) != args[0].device:
-            raise HostSyncError(f"a copy from {args[0].device} to {kwargs['device']} synchronises with the host")
+        why = host_sync(func, args, kwargs)
+        if why is not None:
+            raise HostSyncError(why)
         return func(*args, **(kwargs or {}))
 
 

@@ -119,15 +119,14 @@ def node_batch(N: int, device: str, dtype: torch.dtype, seed: int = 0, frame: in
 _VIEWS = ("aten.slice.", "aten.select.", "aten.unsqueeze", "aten.view.", "aten.squeeze", "aten.expand.",
           "aten._unsafe_view", "aten.transpose.", "aten.t.", "aten.permute.", "aten.alias", "aten.diagonal.",
           "aten.unbind", "aten.split.", "aten.as_strided.", "aten.detach")
-_SYNCS = ("aten._local_scalar_dense", "aten.nonzero", "aten.masked_select")
 
 
 def launch_counts(run) -> dict:
     """What one call of ``run`` launches, counted on its device's operator dispatch (no timing): ``ops``, the
     operators that are kernel launches on a GPU (views excluded) on this device's paths; ``launches``, the same
     on the GPU's paths (:func:`torchhand.kernels.graphs.gpu_paths`), a function given to ``replayed`` counting
-    as one launch (its graph's replay); ``syncs``, the host reads left on the GPU's paths (``.item()``, ``nonzero``,
-    ``masked_select``; on the CPU also checks that a GPU skips)."""
+    as one launch (its graph's replay); ``syncs``, the host reads left on the GPU's paths
+    (:func:`torchhand.kernels.graphs.host_sync`; on the CPU also index checks that a GPU skips)."""
     from torch.utils._python_dispatch import TorchDispatchMode
 
     from torchhand.kernels import graphs
@@ -143,7 +142,7 @@ def launch_counts(run) -> dict:
                 self.ops += 1
                 if not graphs.in_replayed():
                     self.outside += 1
-                    self.syncs += name.startswith(_SYNCS)
+                    self.syncs += graphs.host_sync(func, args, kwargs) is not None
             return func(*args, **(kwargs or {}))
 
     with Count() as eager:
