@@ -598,3 +598,34 @@ def test_admm_lp_feasible_near_the_force_limit_agrees_with_highs():
     ok = torch.tensor(highs)
     assert bool((res.status[ok] == CONVERGED).all()) and bool((res.status[~ok] == INFEASIBLE).all())
     assert bool((res.certified_radius[~ok] > 0).all()) and bool((res.violation[ok] <= 1e-5).all())
+
+
+def test_admm_lp_feasible_doubts_a_claimed_convergence_that_fails_the_bound(monkeypatch):
+    """Regression (another CPU's arithmetic: ATEN_CPU_CAPABILITY=avx2 OPENBLAS_CORETYPE=Zen): on frames HiGHS proves
+    infeasible by 0.1 % of the force limit, the polish of the interior point, which had drifted far out, passed the
+    kernel's converged test (relative to the size of the point) at a point violating the rows by metres. The retry
+    asked the interior point again, which said the same, so the frame ended MAX_ITERATIONS without a certificate.
+    Here every interior-point answer on an infeasible frame is replaced by such a claim (CONVERGED, far point):
+    the retry must take ADMM alone, whose certificate proves the frame infeasible."""
+    import torchhand.kernels.convex_qp as cq
+
+    (G, h, A, b), highs = _frame_lps_near_the_limit((-1e-3, 1e-3))
+    real, calls = cq.solve_convex_qp, []
+
+    def claiming(*args, **kw):
+        res = real(*args, **kw)
+        calls.append(kw.get("method"))
+        if kw.get("method") != "ipm":
+            return res
+        doubt = res.status != int(SolverStatus.CONVERGED)
+        far = res.z + 1e9 * doubt.unsqueeze(-1)
+        return res._replace(z=far, status=torch.where(doubt, int(SolverStatus.CONVERGED), res.status))
+
+    monkeypatch.setattr(cq, "solve_convex_qp", claiming)
+    res = lp_feasible(G, h, A, b, method="admm")
+    ok = torch.tensor(highs)
+    assert 0 < int(ok.sum()) < len(highs)
+    assert calls == ["ipm", "admm"], calls                  # every infeasible frame retried by ADMM alone
+    assert res.feasible.tolist() == highs
+    assert bool((res.status[~ok] == int(SolverStatus.INFEASIBLE)).all()), res.status[~ok]
+    assert bool((res.certified_radius[~ok] > 0).all())

@@ -62,7 +62,10 @@ def _lp_feasible_admm(Gn, hn, An, bn, finite, tol: float, dt) -> FeasibilityResu
     * INFEASIBLE iff the kernel returned INFEASIBLE with a Farkas pair (lam >= 0, nu) whose
       ``g = -(hn^T lam + bn^T nu) > 0``; then ``certified_radius = g / |Gn^T lam + An^T nu|_2`` (inf when that
       is 0, e.g. the range test's certificate): no feasible point is closer to the origin;
-    * neither: solved once more (interior point first, with four times its iterations and twice ADMM's), then
+    * neither: solved once more, with twice ADMM's iterations: where the kernel said MAX_ITERATIONS, interior point
+      first with four times its iterations; where it said CONVERGED at a point that fails the bound above (its
+      test is relative to the size of the point, and the polish of an interior point that drifted far out can
+      pass it on an infeasible system), ADMM alone without the polish, whose iterates yield the Farkas pair. Then
       MAX_ITERATIONS (feasible False) for what stays undecided.
 
     ``z`` is the kernel's last iterate (not the least-violation point of the qpth method).
@@ -80,7 +83,7 @@ def _lp_feasible_admm(Gn, hn, An, bn, finite, tol: float, dt) -> FeasibilityResu
         b_n = G_.shape[0]
         res = solve_convex_qp(G_.new_zeros(b_n, nz, nz), G_.new_zeros(b_n, nz), G_ if nineq else None,
                               h_ if nineq else None, A_ if neq else None, b_ if neq else None, tol=min(tol, 1e-6),
-                              method="ipm", **kw)
+                              **{"method": "ipm", **kw})
         viol, _ = _witness_and_certificate(G_, h_, A_, b_, res.z)
         feas = fin & (viol <= tol * sc)
         lam, nu = res.lam.clamp_min(0), res.nu
@@ -89,19 +92,24 @@ def _lp_feasible_admm(Gn, hn, An, bn, finite, tol: float, dt) -> FeasibilityResu
         cert = fin & ~feas & (res.status == _INFEASIBLE) & (g > 0)
         radius = torch.where(cert, g / e.norm(dim=1), zero)
         status = torch.where(feas, _CONVERGED, torch.where(cert, _INFEASIBLE, _MAX_ITERATIONS))
-        return feas, res.z, viol, radius, status, res.iterations.long()
+        return feas, res.z, viol, radius, status, res.iterations.long(), res.status == _CONVERGED
 
     with torch.no_grad():
-        feas, z, viol, radius, status, iters = decide(Gn, hn, An, bn, scale, finite)
+        feas, z, viol, radius, status, iters, claimed = decide(Gn, hn, An, bn, scale, finite)
         open_ = finite & (status == _MAX_ITERATIONS)
         if bool(open_.any()):                                     # host sync: once
-            j = open_.nonzero().squeeze(1)
-            sel = lambda t: t.index_select(0, j)  # noqa: E731
-            more = decide(sel(Gn), sel(hn), sel(An), sel(bn), sel(scale), sel(finite), ipm_iters=200,
-                          max_iters=2 * qp_tolerances(f64).max_iters)
-            feas, z, viol, radius, status = (t.index_copy(0, j, m) for t, m in
-                                              zip((feas, z, viol, radius, status), more[:5]))
-            iters = iters.index_copy(0, j, sel(iters) + more[5])
+            longer = 2 * qp_tolerances(f64).max_iters
+            for rows, kw in ((open_ & ~claimed, dict(ipm_iters=200, max_iters=longer)),
+                             (open_ & claimed, dict(method="admm", polish=False, max_iters=longer,
+                                                    fallback_after=longer))):
+                j = rows.nonzero().squeeze(1)
+                if not j.numel():
+                    continue
+                sel = lambda t: t.index_select(0, j)  # noqa: E731
+                more = decide(sel(Gn), sel(hn), sel(An), sel(bn), sel(scale), sel(finite), **kw)
+                feas, z, viol, radius, status = (t.index_copy(0, j, m) for t, m in
+                                                  zip((feas, z, viol, radius, status), more[:5]))
+                iters = iters.index_copy(0, j, sel(iters) + more[5])
         status = torch.where(finite, status, _INVALID).to(torch.int8)
     return FeasibilityResult(feasible=feas, z=z.to(dt), violation=viol.to(dt), certified_radius=radius.to(dt),
                              status=status, iterations=iters)
