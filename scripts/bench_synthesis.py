@@ -33,6 +33,12 @@ against each window alone, in the same process: the ratio of the times and wheth
 alone run.
 
     python scripts/bench_synthesis.py fill --fill-frames 290:420 --max-nodes 900 --stall-nodes 300 --solutions 2
+
+``finish``: the finishing of ``--solutions`` paths that one search of a scene found (``--scenes``, ``--seeds``),
+one path after another against all side by side (each step's work of every path as one batch), ``--repeats``
+alternations: the ratio of the medians and whether every path's result is its alone one.
+
+    python scripts/bench_synthesis.py finish --scenes box-turn --solutions 8 --repeats 3
 """
 
 from __future__ import annotations
@@ -301,6 +307,46 @@ def bench_batch(scene: str = "box-turn", seeds=tuple(range(16)), solutions: int 
     return row
 
 
+def bench_finish(scene: str = "box-turn", paths: int = 8, seed: int = 0, max_nodes: int = 60000,
+                 device: str = "cpu", repeats: int = 3) -> dict:
+    """The finishing (reconstruction and exact re-check, :mod:`torchhand.synthesis.finishing`) of ``paths`` paths
+    that one search of ``scene`` found, one path after another (``drive``) against all side by side (``drive_many``:
+    each step's work of all paths as one batch), alternating, ``repeats`` times each; medians, and whether every
+    path's result is identical."""
+    from torchhand import load_scene
+    from torchhand.synthesis import finishing
+    from torchhand.synthesis.initial import prune_patches
+    from torchhand.synthesis.node_test import NodeTestSettings
+    from torchhand.synthesis.problem import build_problem
+    from torchhand.synthesis.search import SearchSettings, search
+
+    gen = torch.Generator().manual_seed(seed)
+    problem = build_problem(load_scene(scene), gen, device=device)
+    sols, _ = search(problem, prune_patches(problem, gen), SearchSettings(solutions=paths, max_nodes=max_nodes,
+                                                                          candidates=16), seed=seed)
+    programs = lambda: [finishing.finalize_steps(problem, s, i, ns=NodeTestSettings())  # noqa: E731
+                        for i, s in enumerate(sols)]
+    times = {"alone": [], "together": []}
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        alone = [finishing.drive(p) for p in programs()]
+        times["alone"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        together = finishing.drive_many(programs())
+        times["together"].append(time.perf_counter() - t0)
+
+    def same(a, b):
+        if (a[0] is None) != (b[0] is None) or a[1] != b[1]:
+            return False
+        return a[0] is None or all(torch.equal(getattr(a[0], f), getattr(b[0], f)) for f in ("q", "c_force", "c_point"))
+
+    alone_s, together_s = statistics.median(times["alone"]), statistics.median(times["together"])
+    return {"scene": scene, "device": device, "paths": len(sols), "ok": sum(r[1] == "ok" for r in alone),
+            "alone_s": alone_s, "together_s": together_s, "together_over_alone": together_s / alone_s,
+            "per_path_alone_s": alone_s / max(len(sols), 1), "identical": f"{sum(map(same, alone, together))}/"
+                                                                          f"{len(sols)}"}
+
+
 def bench_fill(frames: str = "290:420", window: int = 30, overlap: int = 5, max_nodes: int = 900,
                stall_nodes: int = 300, variants: int = 2, device: str = "cpu",
                capture: str | None = None, alternations: int = 1) -> dict:
@@ -375,7 +421,7 @@ def _window_digest(run) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("suite", choices=["nodes", "scenes", "hands", "batch", "fill", "all"])
+    p.add_argument("suite", choices=["nodes", "scenes", "hands", "batch", "fill", "finish", "all"])
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     p.add_argument("--batch", type=int, nargs="+", default=[64, 256, 1024])
@@ -439,6 +485,11 @@ def main(argv=None) -> int:
         print("\n[a capture's windows together against each window alone]")
         print_table(rows, list(rows[0].keys()))
         out["fill"] = rows
+    if a.suite == "finish":
+        rows = [bench_finish(a.scenes[0], a.solutions, a.seeds[0], a.max_nodes, a.device, a.repeats)]
+        print("\n[finishing many paths side by side against one after another]")
+        print_table(rows, list(rows[0].keys()))
+        out["finish"] = rows
     if a.json:
         write_json(a.json, out)
         print(f"wrote {a.json}")

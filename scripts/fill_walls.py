@@ -26,7 +26,7 @@ import torch
 def captured_verdicts(result: Path) -> None:
     from torchhand.scene import load_scene
     from torchhand.synthesis.node_test import NodeTestSettings
-    from torchhand.synthesis.pipeline import _evaluate_motion
+    from torchhand.synthesis.finishing import _evaluate_motion
     from torchhand.synthesis.problem import build_problem
 
     scene = load_scene(result / "scene")

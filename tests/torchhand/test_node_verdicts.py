@@ -59,7 +59,7 @@ def test_the_resumed_verdict_holds_under_a_tiny_perturbation():
 def test_a_contact_the_path_lands_counts_as_new_in_the_final_test():
     """The final test's sliding rule: a slot within contact distance at frame t - 1 is held at t (it may slide),
     unless the searched path establishes it at t (a landing finger that came close a frame early)."""
-    from torchhand.synthesis.pipeline import held_before
+    from torchhand.synthesis.finishing import held_before
 
     c = torch.tensor([[0, 0], [1, 1], [1, 1], [1, 1]], dtype=torch.bool)     # (T, K): both on from frame 1
     plan = torch.tensor([[0, 0], [1, 0], [1, 1], [1, 1]], dtype=torch.bool)  # slot 1 lands at frame 2

@@ -117,7 +117,7 @@ def _settle(problem, q: torch.Tensor, known: np.ndarray, ns, settings):
     frames kept, free fingers pulled to rest, and the object, the table and the other fingers as collision
     constraints; solved frames the smoothing breaks get their stitched pose back (blended in, as the synthesis
     does). Returns (q (T, H, D), the final evaluation)."""
-    from ..synthesis.pipeline import _blend_in, _evaluate_motion
+    from ..synthesis.finishing import _blend_in, _evaluate_motion
     from ..synthesis.reconstruct import ContactTrack, reconstruct_motion
 
     first = _evaluate_motion(problem, q, ns)
@@ -167,7 +167,7 @@ def _distinct(motions: list, status: list, min_difference: float = math.radians(
 
 
 def _final(res, q: torch.Tensor, v: int, problem):
-    from ..synthesis.pipeline import FinalSolution
+    from ..synthesis.finishing import FinalSolution
 
     T, H = q.shape[:2]
     F = problem.hands[0].num_fingers

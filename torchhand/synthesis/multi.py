@@ -36,9 +36,10 @@ from typing import Callable
 
 import torch
 
+from .finishing import run_works
 from .initial import InitialSamples
 from .node_test import NodeTestSettings
-from .problem import SynthesisProblem
+from .problem import SynthesisProblem, frames_key, node_context
 from .search import SearchSettings, SearchStats, Solution, _Search
 from ._search_expand import Candidates, WindowOutcome, candidates, regroup, test_windows
 
@@ -77,24 +78,11 @@ class MultiStats:
     rounds: int = 0
     calls: int = 0
     batch_sizes: list = field(default_factory=list)
+    finish_batches: int = 0                            # batches of finishing work run (:func:`.finishing.run_works`)
+    finish_sizes: list = field(default_factory=list)   # the works of each
 
 
-_STATIC = ("hands", "sdf", "mesh", "ground")
-_FRAMES = ("root", "object_pose", "object_inv", "com", "wrench", "env")
-_VALUES = ("env_friction", "friction", "mass", "weight", "fps", "table_height")
 _SPEEDS = ("slide_speed", "table_slide_speed")
-
-
-def node_context(problem: SynthesisProblem) -> tuple:
-    """What the node test reads of ``problem`` apart from its frames: the identities of its models, SDF, mesh and
-    ground, its scalars, its table-contact slots, dtype and device. Problems with the same context can be tested in
-    one call (their frames stacked when they differ, :func:`stack_frames`)."""
-    return (tuple(id(getattr(problem, f)) for f in _STATIC) + tuple(getattr(problem, f) for f in _VALUES)
-            + (int(problem.env.mask.shape[1]), problem.dtype, str(problem.device)))
-
-
-def _frames_key(problem: SynthesisProblem) -> tuple:
-    return tuple(id(getattr(problem, f)) for f in _FRAMES)
 
 
 def _group_key(run: _Search) -> tuple:
@@ -184,9 +172,12 @@ def search_lanes(lanes, *, stats: MultiStats | None = None, on_round=None, on_do
             return step_lane(i, error=exc)
         step_search(i, None)
 
-    def step_search(i: int, sent) -> None:
+    def step_search(i: int, sent, error: Exception | None = None) -> None:
         try:
-            waiting[i] = next(searches[i]) if sent is None else searches[i].send(sent)
+            if error is not None:
+                waiting[i] = searches[i].throw(error)
+            else:
+                waiting[i] = next(searches[i]) if sent is None else searches[i].send(sent)
             return
         except StopIteration as done:
             run = runs[i]
@@ -201,8 +192,13 @@ def search_lanes(lanes, *, stats: MultiStats | None = None, on_round=None, on_do
         step_lane(i)
     stack_cache: dict = {}
     while waiting:
+        work = sorted(i for i, w in waiting.items() if not isinstance(w, list))
+        if work and 2 * len(work) >= len(waiting):          # half of the searches wait on their paths' finishing
+            for i, result, error in _finish_work([waiting[i] for i in work], work, stats):
+                step_search(i, result, error)
+            continue
         groups: dict = {}
-        for i in sorted(waiting):
+        for i in sorted(i for i in waiting if i not in work):
             groups.setdefault(_group_key(runs[i]), []).append(i)
         expansions = {}
         for members in groups.values():
@@ -213,6 +209,24 @@ def search_lanes(lanes, *, stats: MultiStats | None = None, on_round=None, on_do
         if on_round is not None:
             on_round(stats, len(waiting))
     return results
+
+
+def _finish_work(works: list, owners: list, stats: MultiStats) -> list:
+    """The finishing work the searches ``owners`` wait on, run together (:func:`.finishing.run_works`): (owner,
+    result, None) each, or, where a batch raised, each work run alone: (owner, None, its error) for those that
+    raise."""
+    stats.finish_batches += 1
+    stats.finish_sizes.append(len(works))
+    try:
+        return [(i, r, None) for i, r in zip(owners, run_works(works))]
+    except Exception:
+        out = []
+        for i, w in zip(owners, works):
+            try:
+                out.append((i, w.run(), None))
+            except Exception as exc:
+                out.append((i, None, exc))
+        return out
 
 
 def _expand_group(runs: dict, members: list, waiting: dict, stats: MultiStats, max_rows, cache: dict) -> dict:
@@ -247,7 +261,7 @@ def _stacked(cache: dict, problems: list, owner: torch.Tensor):
     distinct ones (cached while the same set runs)."""
     distinct: dict = {}
     for p in problems:
-        distinct.setdefault(_frames_key(p), p)
+        distinct.setdefault(frames_key(p), p)
     if len(distinct) == 1:
         return problems[0], None
     key = tuple(distinct)
@@ -257,7 +271,7 @@ def _stacked(cache: dict, problems: list, owner: torch.Tensor):
         cache[key] = (tuple(distinct.values()),) + stack_frames(list(distinct.values()))
     _, stacked, starts = cache[key]
     where = dict(zip(key, starts))
-    per_member = torch.tensor([where[_frames_key(p)] for p in problems])
+    per_member = torch.tensor([where[frames_key(p)] for p in problems])
     return stacked, per_member[owner].to(problems[0].device)
 
 

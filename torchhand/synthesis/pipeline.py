@@ -26,7 +26,6 @@ Conventions: world frame, metres, newtons, radians; forces are those of the hand
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -38,38 +37,13 @@ from ..scene import Scene, load_scene
 from . import DEFAULT_MAX_NODES
 from .initial import prune_patches
 from .mount_fit import fit_mounts
-from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
+from .finishing import FinalSolution, clocked, finalize_solution, finalize_steps  # noqa: F401 (finalize_solution: API)
+from .node_test import NodeTestSettings
 from .problem import SynthesisProblem, build_problem
-from .reconstruct import ContactTrack, reconstruct_motion
 from .search import SearchSettings, SearchStats, Solution, search
 from ._diversity import diversity  # noqa: F401  (re-exported: the diversity of a result)
 
 __all__ = ["FinalSolution", "SynthesisResult", "synthesize", "synthesize_seeds", "finalize_solution"]
-
-
-@dataclass(frozen=True)
-class FinalSolution:
-    """A finished motion (T frames, H hands, K = H L + H F contact slots (``node_test.contact_slots``), E table
-    slots).
-
-    q: (T, H, D) radians; c_mask (T, K) bool; c_local (T, K, 3) link frame; c_point (T, K, 3) world, on the
-    object surface; c_normal (T, K, 3) into the object; c_force (T, K, 3) newtons, hand on object;
-    env_force (T, E, 3); guiding (T, H, F) bool; sliding (T, K) bool: contacts whose hand point slides on the
-    object; reconstructed: whether q is the smoothed motion (False: the searched poses); index: order found
-    """
-
-    q: torch.Tensor
-    c_mask: torch.Tensor
-    c_local: torch.Tensor
-    c_point: torch.Tensor
-    c_normal: torch.Tensor
-    c_force: torch.Tensor
-    env_force: torch.Tensor
-    guiding: torch.Tensor
-    guide_obj: torch.Tensor
-    sliding: torch.Tensor
-    reconstructed: bool
-    index: int
 
 
 
@@ -122,138 +96,6 @@ class SynthesisResult:
         from .output import write_result
         return write_result(self, directory, overwrite=overwrite)
 
-
-def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:
-    """``res`` with the rows ``index`` (n,) replaced by those of ``values`` (n rows)."""
-    def put(a, b):
-        out = a.clone()
-        out[index] = b
-        return out
-    return FrameResult(**{f.name: put(getattr(res, f.name), getattr(values, f.name))
-                          for f in dataclasses.fields(FrameResult)})
-
-
-def _evaluate_motion(problem: SynthesisProblem, q: torch.Tensor, ns: NodeTestSettings, exact: bool = True,
-                     plan_mask: torch.Tensor | None = None):
-    """The contact and dynamic test of a whole motion q (T, H, D), with the search's sliding rule (a contact held
-    since the previous frame whose hand point moves on the object faster than ``ns.slide_speed`` slides): one
-    pass for the contacts, a second with each frame's predecessor. Returns the FrameResult of the second pass.
-
-    plan_mask: the searched path's contact slots (T, K) bool. A slot the path establishes at frame t is landing
-    there: it counts as new at t (it cannot slide), as in the search, even where the smoothed finger came within the
-    contact distance a frame earlier, on its way in."""
-    T = q.shape[0]
-    t = torch.arange(T, device=q.device)
-    ns = dataclasses.replace(ns, cone_tol=None, cone_iters=None, cone_polish=True, cone_polish_from=None,
-                             exact=exact)                                # full accuracy, the mesh's normals
-    # contacts only (their normals do not matter here: the grid's, not the mesh's)
-    first = evaluate_poses(problem, t, q, settings=dataclasses.replace(ns, exact=False), dynamics=False)
-    prev_mask = held_before(first.c_mask, plan_mask)
-    q_prev = torch.cat([q[:1], q[:-1]])
-    res = evaluate_poses(problem, t, q, q_prev, prev_mask, settings=ns)
-    retry = (res.cause == CAUSE_DYNAMIC).nonzero().squeeze(-1)
-    if retry.numel():
-        # a force solve that stopped at its iteration limit gets a longer one before the frame counts as failed
-        again = evaluate_poses(problem, t[retry], q[retry], q_prev[retry], prev_mask[retry],
-                               settings=dataclasses.replace(ns, cone_iters=20000))
-        res = _rows_replaced(res, retry, again)
-    return res
-
-
-def held_before(c_mask: torch.Tensor, plan_mask: torch.Tensor | None = None) -> torch.Tensor:
-    """Which contact slots (T, K) were held at the previous frame (and so may slide), from a motion's contacts
-    ``c_mask`` (T, K) bool; with the searched path's ``plan_mask`` (T, K), a slot the path establishes at frame t
-    (off at t - 1, on at t) counts as landing: not held at t."""
-    prev = torch.cat([torch.zeros_like(c_mask[:1]), c_mask[:-1]])
-    if plan_mask is None:
-        return prev
-    landing = plan_mask & ~torch.cat([torch.zeros_like(plan_mask[:1]), plan_mask[:-1]])
-    return prev & ~landing
-
-
-def _blend_in(q_smooth: torch.Tensor, q_search: torch.Tensor, bad: torch.Tensor, width: float = 2.0) -> torch.Tensor:
-    """q_smooth with the searched poses blended back in around the frames ``bad`` (T,) bool: weight 1 at a bad
-    frame, falling off as exp(-(d / width)^2) with the distance d in frames."""
-    T = q_smooth.shape[0]
-    idx = bad.nonzero().squeeze(-1).to(q_smooth.dtype)
-    t = torch.arange(T, device=q_smooth.device, dtype=q_smooth.dtype)
-    w = torch.exp(-(((t[:, None] - idx[None]) / width) ** 2)).amax(-1).reshape(T, 1, 1)
-    return (1 - w) * q_smooth + w * q_search
-
-
-def max_joint_speed(q: torch.Tensor, fps: float) -> float:
-    """Largest |dq/dt| of a motion q (T, ...) radians, by forward differences, rad/s (0 for one frame)."""
-    return float((q[1:] - q[:-1]).abs().amax()) * fps if q.shape[0] > 1 else 0.0
-
-
-def finalize_solution(problem: SynthesisProblem, sol: Solution, index: int, *, ns: NodeTestSettings,
-                      reconstruct: bool = True, joint_speed: float = 8.0,
-                      keep_unsmoothed: bool = False) -> tuple[FinalSolution | None, str]:
-    """Reconstruct and re-check one searched path (see the module docstring). Tried in turn, for the fast
-    reconstruction and then the converged one (``_RECONSTRUCTIONS``): the smoothed motion (table and the joint-speed
-    bound ``joint_speed`` rad/s are constraints of the reconstruction); the smoothed motion with the searched poses
-    blended back in around the frames that failed, if it keeps the speed bound. Then, with ``keep_unsmoothed`` (or
-    ``reconstruct`` False), the searched poses. Contacts the path establishes at a frame count as landing there
-    (``_evaluate_motion``'s ``plan_mask``). Returns (the first that passes the
-    contact and dynamic test in every frame, "ok") or (None, "failed_check" | "unsmoothed")."""
-    def attempt(q):
-        res = _evaluate_motion(problem, q, ns, plan_mask=sol.c_mask)
-        return res, res.c_sliding
-
-    speed_ok = lambda q: max_joint_speed(q, problem.fps) <= joint_speed * (1 + 1e-3)
-    candidates = []
-    for settings in (_RECONSTRUCTIONS if reconstruct else ()):
-        q_rec = _reconstruct_path(problem, sol, ns, joint_speed, settings)
-        if not speed_ok(q_rec):
-            continue
-        res, sliding = attempt(q_rec)
-        candidates.append((q_rec, res, sliding, True))
-        if not bool(res.feasible.all()):
-            q_mix = _blend_in(q_rec, sol.q, ~res.feasible)
-            if speed_ok(q_mix):
-                res, sliding = attempt(q_mix)
-                candidates.append((q_mix, res, sliding, True))
-        if bool(candidates[-1][1].feasible.all()):
-            break
-    smoothed_ok = bool(candidates) and bool(candidates[-1][1].feasible.all())
-    if not smoothed_ok:
-        if reconstruct and not keep_unsmoothed:
-            return None, "unsmoothed" if bool(attempt(sol.q)[0].feasible.all()) else "failed_check"
-        res, sliding = attempt(sol.q)
-        candidates.append((sol.q, res, sliding, False))
-    q, res, sliding, smoothed = candidates[-1]
-    if not bool(res.feasible.all()):
-        return None, "failed_check"
-    return FinalSolution(q=q, c_mask=res.c_mask, c_local=res.c_local, c_point=res.c_point, c_normal=res.c_normal,
-                         c_force=res.c_force, env_force=res.env_force, guiding=sol.guiding, guide_obj=sol.guide_obj,
-                         sliding=sliding, reconstructed=smoothed, index=index), "ok"
-
-
-_RECONSTRUCTIONS = (dict(max_inner=8, step_tol=1e-3), dict(max_inner=30, step_tol=1e-4))
-"""Reconstruction settings tried in turn by :func:`finalize_solution`: the fast one (a quarter of the time, enough
-on most paths), then Gauss-Newton converged to 1e-4 rad where the fast one's motion fails the final test."""
-
-
-def _reconstruct_path(problem: SynthesisProblem, sol: Solution, ns: NodeTestSettings, joint_speed: float,
-                      settings: dict) -> torch.Tensor:
-    """The searched path's reconstruction (§6) per hand, with its contacts kept, the table and the joint-speed bound,
-    (T, H, D)."""
-    qs = []
-    for h, hand in enumerate(problem.hands):
-        L = hand.num_links
-        sl = slice(h * L, (h + 1) * L)
-        poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
-        link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
-        loc = sol.c_local[:, sl]
-        target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
-        mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
-        contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
-        rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
-                                 object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
-                                 table_height=problem.table_height, max_joint_step=joint_speed / problem.fps,
-                                 finger_tol=0.5 * ns.finger_tol, ground=problem.ground, **settings)
-        qs.append(rec.q.to(sol.q.dtype))
-    return torch.stack(qs, 1)
 
 
 def _duplicate(q: torch.Tensor, earlier: list, min_difference: float) -> bool:
@@ -400,15 +242,19 @@ def _start(scene: Scene, fits: tuple, seed: int, t_start: float, o: _Options, pr
     t_final = [0.0]
     searched = []                           # the searched poses of the accepted paths
 
-    def accept(path: Solution) -> bool:
+    def accept(path: Solution):
+        # a generator (the path's finishing program, :mod:`.finishing`): the search passes its work on
         t0 = time.perf_counter()
         if _duplicate(path.q, searched, o.min_difference):
             excluded["duplicate"] += 1      # as searched already: no need to reconstruct it
+            t_final[0] += time.perf_counter() - t0
             return False
         report("reconstruct", solution=len(result.finals), seed=seed)
-        fin, reason = finalize_solution(problem, path, len(result.finals), ns=o.node_settings,
-                                        reconstruct=o.reconstruct, joint_speed=o.max_joint_speed,
-                                        keep_unsmoothed=o.keep_unsmoothed)
+        t_final[0] += time.perf_counter() - t0
+        fin, reason = yield from clocked(finalize_steps(problem, path, len(result.finals), ns=o.node_settings,
+                                                        reconstruct=o.reconstruct, joint_speed=o.max_joint_speed,
+                                                        keep_unsmoothed=o.keep_unsmoothed), t_final)
+        t0 = time.perf_counter()
         if fin is not None and _duplicate(fin.q, result.finals, o.min_difference):
             fin, reason = None, "duplicate"
         t_final[0] += time.perf_counter() - t0

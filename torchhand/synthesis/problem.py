@@ -33,7 +33,8 @@ from ..geometry.objects import sample_surface
 from ..scene import EnvContacts, Scene, environment_contacts
 from ..geometry.sdf import SDFGrid
 
-__all__ = ["SynthesisProblem", "build_problem", "required_wrench", "finger_workspace"]
+__all__ = ["SynthesisProblem", "build_problem", "required_wrench", "finger_workspace", "node_context",
+           "frames_key"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,6 +101,25 @@ class SynthesisProblem:
     @property
     def device(self) -> torch.device:
         return self.object_pose.device
+
+
+_STATIC = ("hands", "sdf", "mesh", "ground")
+_FRAMES = ("root", "object_pose", "object_inv", "com", "wrench", "env")
+_VALUES = ("env_friction", "friction", "mass", "weight", "fps", "table_height")
+
+
+def node_context(problem: SynthesisProblem) -> tuple:
+    """What the node test reads of ``problem`` apart from its frames: the identities of its models, SDF, mesh and
+    ground, its scalars, its table-contact slots, dtype and device. Problems with the same context can be tested in
+    one call (their frames stacked when they differ, :func:`.multi.stack_frames`)."""
+    return (tuple(id(getattr(problem, f)) for f in _STATIC) + tuple(getattr(problem, f) for f in _VALUES)
+            + (int(problem.env.mask.shape[1]), problem.dtype, str(problem.device)))
+
+
+def frames_key(problem: SynthesisProblem) -> tuple:
+    """The identities of ``problem``'s frame tensors: equal for the seeds of one scene (``build_problem``'s
+    ``share``), which are then one problem to the node test."""
+    return tuple(id(getattr(problem, f)) for f in _FRAMES)
 
 
 def required_wrench(object_pose: torch.Tensor, com_local: torch.Tensor, mass: float, inertia: torch.Tensor,

@@ -34,6 +34,7 @@ can be returned (``search(..., partial=[])``): a caller that covers a long clip 
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from dataclasses import dataclass, field
@@ -336,21 +337,24 @@ class _Search:
     # --- main loop --------------------------------------------------------------------------------------------
     def run(self, progress=None, accept=None) -> list[Solution]:
         """Grow the trees until ``solutions`` paths are accepted or a budget is spent (``max_nodes`` node tests,
-        checked after every round, or the ``time_budget`` cap). ``accept(solution) -> bool`` is called on every
-        new full path as it is found (default: accept all); only accepted paths count and are returned."""
+        checked after every round, or the ``time_budget`` cap). ``accept(solution)`` on every new full path returns
+        a bool, or a finishing program that returns one (:meth:`rounds`; its work is run here, ``work.run()``);
+        only accepted paths count and are returned (default: all)."""
         rounds = self.rounds(progress, accept)
         try:
-            jobs = next(rounds)
+            step = next(rounds)
             while True:
-                jobs = rounds.send(self._expand(jobs))
+                step = rounds.send(self._expand(step) if isinstance(step, list) else step.run())
         except StopIteration as done:
             return done.value
 
     def rounds(self, progress=None, accept=None):
         """The search of :meth:`run` as a generator of rounds: it yields each round's jobs (a list of (tree, node,
         plans, w)), is sent their :class:`~._search_expand.Expansion` list, and returns the accepted solutions.
-        Whoever runs the expansions (alone: :meth:`_expand`; many searches: :mod:`.multi`) gives the same run, as
-        long as every candidate's node tests are those it would get alone."""
+        Where ``accept`` returns a generator (a path's finishing program), the work that program yields (anything
+        not a list) is yielded too, and its result sent back to it. Whoever runs the expansions and the work (alone:
+        :meth:`_expand` and ``work.run()``; many searches: :mod:`.multi`) gives the same run, as long as every
+        candidate's node tests and every work's result are those it would get alone."""
         s = self.s
         self.accept = accept
         start = time.perf_counter()
@@ -374,7 +378,7 @@ class _Search:
         while not spent():
             jobs = []
             for tree in self.trees:
-                node = self._frontier(tree)
+                node = yield from self._frontier(tree)
                 if len(self.solutions) >= s.solutions:
                     break
                 if node is None:
@@ -390,7 +394,7 @@ class _Search:
                 progress(self)
         for tree in self.trees:          # a path completed in the round that spent the budget still counts
             if tree.stack and tree.stack[-1].t1 >= self.T:
-                self._record_path(tree)
+                yield from self._record_path(tree)
         self.stats.time_s = time.perf_counter() - start
         self.stats.success_frames = sum(n.t1 - n.t0 for n in self.solution_nodes)
         return [sol for sol in self.accepted]
@@ -409,14 +413,14 @@ class _Search:
                 node.fail, node.template = res.fail, res.template
 
     def _frontier(self, tree: _Tree):
-        """The node this tree expands next, after backtracking and consuming pending siblings; None if it
-        pushed a pending sibling instead (no test needed this round)."""
+        """Generator (passing on the work of the paths it records): the node this tree expands next, after
+        backtracking and consuming pending siblings; None if it pushed a pending sibling instead."""
         while True:
             if not tree.stack or tree.found >= tree.cap:
                 self._restart(tree)
             node = tree.stack[-1]
             if node.t1 >= self.T:                      # a full path: record it (unless seen), then backtrack
-                self._record_path(tree)
+                yield from self._record_path(tree)
                 tree.stack.pop()
                 continue
             if node.children >= node.target or node.expansions >= self.s.max_expansions:
@@ -431,9 +435,9 @@ class _Search:
                 return None
             return node
 
-    def _record_path(self, tree: _Tree) -> None:
-        """Record the full path on top of ``tree``'s stack as a solution, unless one as near was seen or enough
-        were accepted (``accept`` decides whether it counts)."""
+    def _record_path(self, tree: _Tree):
+        """Generator (passing on the work of ``accept``'s program): record the full path on top of ``tree``'s
+        stack as a solution, unless one as near was seen or enough were accepted; ``accept`` decides."""
         path = list(tree.stack[1:])
         q = torch.cat([n.frames["q"] for n in path])
         if len(self.solutions) < self.s.solutions and \
@@ -441,7 +445,8 @@ class _Search:
             self.solution_q.append(q)
             sol = self._solution(tree.index, path)
             self.stats.paths_found += 1
-            if self.accept is None or self.accept(sol):
+            verdict = True if self.accept is None else self.accept(sol)
+            if (yield from verdict) if inspect.isgenerator(verdict) else verdict:
                 self.solutions.append((tree.index, path))
                 self.accepted.append(sol)
                 self.solution_nodes.update(path)
