@@ -6,8 +6,8 @@
 #
 # Settings (environment): DEVICE (cuda), SEEDS (16: the batch's seeds 0..SEEDS-1), MAX_NODES (6000 per seed),
 # SOLUTIONS (3), ALONE (2: seeds also run one at a time on the device, for the identical-files check), NODE_BATCH
-# ("1024 16384 65536"), FILL_FRAMES (mug1's frames for the fill step, 290:420), STEPS (tests nodes batch fill: the steps
-# to run). Each step is bounded by STEP_TIMEOUT seconds
+# ("1024 16384 65536"), FILL_FRAMES (mug1's frames for the fill step, 290:420), FINISH_PATHS (8: paths the finish step
+# finishes one after another and side by side), STEPS (tests nodes batch fill finish: the steps to run). Each step is bounded by STEP_TIMEOUT seconds
 # (540) and a failed or timed-out step does not stop the next; the script's exit status is the first failure's.
 # The one-job-at-a-time CPU rate the batch is compared with is BENCHMARKS.md's (the same command with --device cpu).
 set -uo pipefail
@@ -20,7 +20,8 @@ SOLUTIONS=${SOLUTIONS:-3}
 ALONE=${ALONE:-2}
 NODE_BATCH=${NODE_BATCH:-1024 16384 65536}
 FILL_FRAMES=${FILL_FRAMES:-290:420}
-STEPS=${STEPS:-tests nodes batch fill}
+FINISH_PATHS=${FINISH_PATHS:-8}
+STEPS=${STEPS:-tests nodes batch fill finish}
 STEP_TIMEOUT=${STEP_TIMEOUT:-540}
 PY=${PYTHON:-python3}
 mkdir -p "$OUT"
@@ -47,7 +48,8 @@ step() {   # step NAME COMMAND...: run one step with its log, remember the first
 for s in $STEPS; do
   case $s in
     tests) step tests "$PY" -m pytest -q -p no:cacheprovider tests/kernels tests/torchhand/test_multi_search.py \
-             tests/torchhand/test_step.py tests/torchhand/test_fill_pieces.py tests/torchhand/test_node_graphs.py -k cuda ;;
+             tests/torchhand/test_step.py tests/torchhand/test_fill_pieces.py tests/torchhand/test_node_graphs.py \
+             tests/torchhand/test_finishing.py tests/torchhand/test_reconstruct.py -k cuda ;;
     nodes) # shellcheck disable=SC2086
            step nodes "$PY" scripts/bench_synthesis.py nodes --device "$DEVICE" --batch $NODE_BATCH \
              --json "$OUT/nodes.json" ;;
@@ -56,7 +58,9 @@ for s in $STEPS; do
              --json "$OUT/batch.json" ;;
     fill) step fill "$PY" scripts/bench_synthesis.py fill --device "$DEVICE" --fill-frames "$FILL_FRAMES" \
              --max-nodes "$MAX_NODES" --stall-nodes 2000 --solutions 2 --json "$OUT/fill.json" ;;
-    *) echo "gpu_figures: unknown step '$s' (tests, nodes, batch, fill)" >&2; exit 2 ;;
+    finish) step finish "$PY" scripts/bench_synthesis.py finish --device "$DEVICE" --scenes box-turn \
+             --solutions "$FINISH_PATHS" --repeats 2 --json "$OUT/finish.json" ;;
+    *) echo "gpu_figures: unknown step '$s' (tests, nodes, batch, fill, finish)" >&2; exit 2 ;;
   esac
 done
 exit "$status"

@@ -53,15 +53,19 @@ def _same_frames(a, b) -> bool:
     return all(torch.equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
 
 
-def test_seeds_finish_their_paths_together_as_alone(scene, searched):
+def test_seeds_finish_their_paths_together_as_alone(scene, searched, monkeypatch):
     """``synthesize_seeds``: the searches that found a path wait until half of them have one, then their paths'
     reconstructions and evaluations run as batches of several paths; every seed's solutions and exclusions are
     those it gets alone, bit for bit."""
     _, alone = searched
-    stats = MultiStats()
+    stats, sizes = MultiStats(), {"reconstruct": [], "evaluate": []}
+    real_rec, real_eval = finishing.reconstruct_paths, finishing.evaluate_motions
+    monkeypatch.setattr(finishing, "reconstruct_paths", lambda w: sizes["reconstruct"].append(len(w)) or real_rec(w))
+    monkeypatch.setattr(finishing, "evaluate_motions", lambda w: sizes["evaluate"].append(len(w)) or real_eval(w))
     batch = synthesize_seeds(scene, SEEDS, multi_stats=stats, **OPTIONS)
     assert sum(len(r.finals) for r in alone.values()) >= 4
     assert stats.finish_batches > 0 and max(stats.finish_sizes) >= 3      # several paths' work in one batch
+    assert max(sizes["reconstruct"]) >= 3 and max(sizes["evaluate"]) >= 3, sizes
     for seed, res in zip(SEEDS, batch):
         ref = alone[seed]
         assert len(res.finals) == len(ref.finals) and res.excluded == ref.excluded
@@ -122,3 +126,29 @@ def test_a_finishing_program_yields_its_work_and_returns_the_verdict(searched):
     assert reason == reason2 and (fin is None) == (again is None)
     if fin is not None:
         assert torch.equal(fin.q, again.q) and torch.equal(fin.c_force, again.c_force)
+
+
+def test_an_error_in_finishing_work_ends_its_search(scene, monkeypatch):
+    """Work that raises is run again alone, and its error is raised inside the search that waits on it: here every
+    evaluation fails, so the batch of seeds stops with that error (``search_many`` raises it) instead of hanging."""
+    def broken(works):
+        raise RuntimeError("evaluation failed")
+
+    monkeypatch.setattr(finishing, "evaluate_motions", broken)
+    with pytest.raises(RuntimeError, match="evaluation failed"):
+        synthesize_seeds(scene, SEEDS[:2], **OPTIONS)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_seeds_finish_their_paths_together_as_alone(scene):
+    """On the GPU the same contract: the seeds' paths finished in batches give each seed's alone result there."""
+    opts = dict(OPTIONS, device="cuda")
+    alone = [synthesize(scene, seed=s, **opts) for s in SEEDS]
+    stats = MultiStats()
+    batch = synthesize_seeds(scene, SEEDS, multi_stats=stats, **opts)
+    assert stats.finish_batches > 0
+    for ref, res in zip(alone, batch):
+        assert len(res.finals) == len(ref.finals) and res.excluded == ref.excluded
+        for a, b in zip(ref.finals, res.finals):
+            for name in FINAL_FIELDS:
+                assert torch.equal(getattr(a, name), getattr(b, name)), name

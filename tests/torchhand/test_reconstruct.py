@@ -4,6 +4,7 @@ reference solved by NumPy."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -458,3 +459,83 @@ def test_table_keeps_finger_capsules_above_the_plane(hand):
     assert float(depth[:, movable].amax()) > 0.004
     assert float(after[:, movable].amax()) <= 5e-4 + 1e-5
     assert float(res.penetration.max()) <= 5e-4 + 1e-5
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# many paths at once
+
+
+def _same_result(a, b) -> bool:
+    return (all(torch.equal(getattr(a, f), getattr(b, f)) for f in ("q", "contact_error", "penetration",
+                                                                     "smoothness", "frame_status"))
+            and (a.iterations, a.status) == (b.iterations, b.status))
+
+
+@pytest.mark.parametrize("options", [dict(), dict(segment=8, max_joint_step=0.15, max_inner=12, step_tol=1e-4)])
+def test_paths_solved_together_are_each_as_alone(hand, sphere_sdf, options):
+    """``reconstruct_motions``: four paths of one wrist and object (one resting clear of the sphere with the thumb
+    pad kept, three sinking in by different amounts) solved together give each path's alone result bit for bit,
+    although they need different numbers of collision rounds and Gauss–Newton steps."""
+    from torchhand.synthesis.reconstruct import reconstruct_motions
+
+    T = 16
+    root, object_pose, sdf = _sphere_under_index(hand, sphere_sdf, T)
+    g = torch.Generator().manual_seed(3)
+    paths = [hand.clamp_to_limits(hand.q_rest + s * torch.randn(T, hand.num_joints, generator=g, dtype=torch.float64))
+             for s in (0.0, 0.02, 0.06)]
+    lifted = hand.q_rest.clone()
+    lifted[hand.joint_names.index("index_mcp_flex")] -= 0.5
+    paths.insert(0, hand.clamp_to_limits(lifted).expand(T, -1).clone())
+    thumb = fingertip_track(hand, paths[0], root, fingers=(0,))
+    tracks = [thumb] + [dataclasses.replace(thumb, mask=torch.zeros_like(thumb.mask)) for _ in paths[1:]]
+    held = torch.zeros(T, hand.num_fingers, dtype=torch.bool)           # the first path is held where it is
+    kw = dict(sdf=sdf, object_pose=object_pose, finger_tol=1e-3, **options)
+    alone = [reconstruct_motion(hand, root, q, c, free=f, **kw)
+             for q, c, f in zip(paths, tracks, [held, None, None, None])]
+    free = [held] + [_free_of(hand, c) for c in tracks[1:]]              # the others: the default, as alone
+    together = reconstruct_motions(hand, root, torch.stack(paths), tracks, free=free, **kw)
+    assert len({r.iterations for r in alone}) > 1                  # the paths leave the collision rounds apart
+    assert all(_same_result(a, b) for a, b in zip(alone, together))
+    # the order of the paths does not matter
+    again = reconstruct_motions(hand, root, torch.stack(paths[::-1]), tracks[::-1], free=free[::-1], **kw)[::-1]
+    assert all(_same_result(a, b) for a, b in zip(alone, again))
+
+
+def _free_of(hand, contacts) -> torch.Tensor:
+    """reconstruct_motion's default ``free``: no masked contact on any link of the finger."""
+    finger = hand.link_finger[contacts.link.clamp(0, hand.num_links - 1)]
+    on = (finger.unsqueeze(-1) == torch.arange(hand.num_fingers)) & contacts.mask.unsqueeze(-1)
+    return ~on.any(dim=1)
+
+
+def test_paths_solved_together_refuse_mismatched_input(hand):
+    from torchhand.synthesis.reconstruct import reconstruct_motions
+
+    T = 6
+    root = wrist_track(T)
+    q = hand.q_rest.expand(2, T, -1).clone()
+    one = ContactTrack.empty(T)
+    with pytest.raises(ShapeError, match="q_search"):
+        reconstruct_motions(hand, root, q[0], [one])
+    with pytest.raises(ShapeError, match="contacts"):
+        reconstruct_motions(hand, root, q, [one])
+    with pytest.raises(ShapeError, match="slots"):
+        reconstruct_motions(hand, root, q, [one, fingertip_track(hand, q[1], root, fingers=(0,))])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_paths_solved_together_are_each_as_alone(hand, sphere_sdf):
+    from torchhand.synthesis.reconstruct import reconstruct_motions
+
+    T = 16
+    root, object_pose, sdf = _sphere_under_index(hand, sphere_sdf, T)
+    g = torch.Generator().manual_seed(5)
+    paths = torch.stack([hand.clamp_to_limits(hand.q_rest + s * torch.randn(T, hand.num_joints, generator=g,
+                                                                            dtype=torch.float64))
+                         for s in (0.0, 0.02, 0.06)]).cuda()
+    h, root, object_pose, sdf = hand.to("cuda"), root.cuda(), object_pose.cuda(), sdf.to("cuda")
+    tracks = [ContactTrack.empty(T, device="cuda")] * 3
+    kw = dict(sdf=sdf, object_pose=object_pose, finger_tol=1e-3, max_joint_step=0.15)
+    alone = [reconstruct_motion(h, root, q, c, **kw) for q, c in zip(paths, tracks)]
+    together = reconstruct_motions(h, root, paths, tracks, **kw)
+    assert all(_same_result(a, b) for a, b in zip(alone, together))

@@ -164,8 +164,9 @@ class _Layout:
 @dataclass(frozen=True)
 class _Constraints:
     """Point constraints, C slots per frame: equalities ``p(q) = target`` (normal None) or one-sided
-    ``normal . (p(q) - target) >= 0``. link, finger: (T, C) long (safe indices); local, target, normal: (T, C, 3);
-    mask: (T, C) bool, only slots a finger joint can move."""
+    ``normal . (p(q) - target) >= 0``. link, finger: (..., C) long (safe indices); local, target, normal:
+    (..., C, 3); mask: (..., C) bool, only slots a finger joint can move. Leading dims: (P, T) for the P paths of
+    a reconstruction, (R,) rows of a window (:meth:`rows`)."""
 
     link: torch.Tensor
     finger: torch.Tensor
@@ -174,12 +175,13 @@ class _Constraints:
     mask: torch.Tensor
     normal: torch.Tensor | None = None
 
-    def frames(self, sl: slice) -> "_Constraints":
-        return tree_map(lambda t: t[sl], self)
+    def rows(self, sl: slice) -> "_Constraints":
+        """Frames ``sl`` of (P, T, C) constraints as rows (P S, C) (row ``p S + t``)."""
+        return tree_map(lambda t: t[:, sl].flatten(0, 1), self)
 
     def cat(self, other: "_Constraints") -> "_Constraints":
-        """The slots of both, (T, C + C')."""
-        return _Constraints(*(torch.cat([a, b], dim=1) for a, b in zip(_fields(self), _fields(other))))
+        """The slots of both, (P, T, C + C')."""
+        return _Constraints(*(torch.cat([a, b], dim=2) for a, b in zip(_fields(self), _fields(other))))
 
 
 def _fields(c: _Constraints) -> tuple:
@@ -190,9 +192,9 @@ def _fields(c: _Constraints) -> tuple:
 class _Problem:
     hand: HandModel
     layout: _Layout
-    root: torch.Tensor          # (T, 4, 4)
-    prior_target: torch.Tensor  # (T, F, n) radians: q_search where a finger is held, q_rest where it is free
-    prior_weight: torch.Tensor  # (T, F)
+    root: torch.Tensor          # (T, 4, 4), shared by the P paths
+    prior_target: torch.Tensor  # (P, T, F, n) radians: q_search where a finger is held, q_rest where it is free
+    prior_weight: torch.Tensor  # (P, T, F)
     bend_weight: float
     rho: float                  # augmented-Lagrangian penalty of every point constraint, 1/m^2
     contact_tol: float

@@ -12,7 +12,9 @@ batches where the math allows:
   frames, scalars and settings: the seeds of one scene) are tested as one evaluation of their frames concatenated
   (:func:`evaluate_motions`). A row's outputs do not depend on the other rows of its call (the node test's
   contract, :mod:`.multi`), so each motion's result is the one it gets alone.
-* **Reconstruct**: the paths of one problem and setting go through :func:`reconstruct_paths`.
+* **Reconstruct**: the paths of one problem and setting are reconstructed together per hand
+  (:func:`~.reconstruct.reconstruct_motions`: every decision of the solve is taken per path, a path that is done
+  is held while the others go on), each result the one it has alone.
 
 The search hands its paths to such programs (:meth:`.search._Search.rounds`), and :func:`.multi.search_lanes` runs
 the work of all searches waiting on one together, so that a result is byte-identical to the search run alone.
@@ -28,7 +30,7 @@ import torch
 
 from .node_test import CAUSE_DYNAMIC, FrameResult, NodeTestSettings, evaluate_poses
 from .problem import SynthesisProblem, frames_key, node_context
-from .reconstruct import ContactTrack, reconstruct_motion
+from .reconstruct import ContactTrack, reconstruct_motions
 from .search import Solution
 
 __all__ = ["FinalSolution", "Reconstruct", "Evaluate", "finalize_solution", "finalize_steps", "drive", "drive_many", "clocked",
@@ -76,8 +78,8 @@ class Reconstruct:
         return run_works([self])[0]
 
     def key(self) -> tuple:
-        return ("reconstruct", id(self.problem), self.joint_speed, self.ns.pen_tol, self.ns.finger_tol,
-                tuple(sorted(self.settings.items())))
+        return ("reconstruct", node_context(self.problem), frames_key(self.problem), self.joint_speed,
+                self.ns.pen_tol, self.ns.finger_tol, tuple(sorted(self.settings.items())))
 
 
 @dataclass(frozen=True, eq=False)
@@ -299,27 +301,37 @@ def _reconstruct_path(problem: SynthesisProblem, sol: Solution, ns: NodeTestSett
                       settings: dict) -> torch.Tensor:
     """The searched path's reconstruction (§6) per hand, with its contacts kept, the table and the joint-speed bound,
     (T, H, D)."""
-    qs = []
-    for h, hand in enumerate(problem.hands):
-        L = hand.num_links
-        sl = slice(h * L, (h + 1) * L)
-        poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
-        link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
-        loc = sol.c_local[:, sl]
-        target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
-        mask = sol.c_mask[:, sl] & (hand.link_finger >= 0)
-        contacts = ContactTrack(link=link, point_local=loc, target=target, mask=mask)
-        rec = reconstruct_motion(hand, problem.root[h], sol.q[:, h], contacts, sdf=problem.sdf,
-                                 object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
-                                 table_height=problem.table_height, max_joint_step=joint_speed / problem.fps,
-                                 finger_tol=0.5 * ns.finger_tol, ground=problem.ground, **settings)
-        qs.append(rec.q.to(sol.q.dtype))
-    return torch.stack(qs, 1)
+    return reconstruct_paths([Reconstruct(problem, sol, ns, joint_speed, settings)])[0]
 
 
 def reconstruct_paths(works: list) -> list:
-    """The reconstructions of :class:`Reconstruct` works of one key (one problem and setting): q (T, H, D) each."""
-    return [_reconstruct_path(w.problem, w.sol, w.ns, w.joint_speed, w.settings) for w in works]
+    """The reconstructions of :class:`Reconstruct` works of one key (one problem and setting), q (T, H, D) each: per
+    hand, the paths in one :func:`~.reconstruct.reconstruct_motions` (each result is its path's alone)."""
+    lead = works[0]
+    problem, ns = lead.problem, lead.ns
+    per_hand = []
+    for h, hand in enumerate(problem.hands):
+        q = torch.stack([w.sol.q[:, h] for w in works])
+        recs = reconstruct_motions(hand, problem.root[h], q, [_contact_track(problem, h, w.sol) for w in works],
+                                   sdf=problem.sdf, object_pose=problem.object_pose, penetration_tol=0.5 * ns.pen_tol,
+                                   table_height=problem.table_height, finger_tol=0.5 * ns.finger_tol,
+                                   max_joint_step=lead.joint_speed / problem.fps, ground=problem.ground,
+                                   **lead.settings)
+        per_hand.append([r.q.to(q.dtype) for r in recs])
+    return [torch.stack([qs[k] for qs in per_hand], 1) for k in range(len(works))]
+
+
+def _contact_track(problem: SynthesisProblem, h: int, sol: Solution) -> ContactTrack:
+    """Hand ``h``'s contacts of a searched path, kept by its reconstruction: each contact's hand point and where the
+    searched pose puts it."""
+    hand = problem.hands[h]
+    L = hand.num_links
+    sl = slice(h * L, (h + 1) * L)
+    poses = hand.forward_kinematics(sol.q[:, h], problem.root[h])
+    link = torch.arange(L, device=sol.q.device).expand(sol.q.shape[0], L)
+    loc = sol.c_local[:, sl]
+    target = (poses[..., :3, :3] @ loc.unsqueeze(-1)).squeeze(-1) + poses[..., :3, 3]
+    return ContactTrack(link=link, point_local=loc, target=target, mask=sol.c_mask[:, sl] & (hand.link_finger >= 0))
 
 
 def _rows_replaced(res: FrameResult, index: torch.Tensor, values: FrameResult) -> FrameResult:

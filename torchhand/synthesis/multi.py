@@ -18,6 +18,12 @@ differ (each window's capture noise), with per-row speeds. Searches of other sce
 other groups, each its own call per frame; nothing is padded. The surface samples and contact patches, which
 differ by seed and window, are read only by the search itself (its plans), never by the node test.
 
+**Finishing.** A search whose ``accept`` returns a finishing program (:mod:`.finishing`) yields that program's work
+instead of jobs while it waits on its path. Such searches pause while the others search, until at least half of the
+searches still running wait on work (or none is searching); then the work of all of them runs together
+(:func:`.finishing.run_works`: evaluations and reconstructions of several paths per call), and each gets its own
+result back. A paused search's run is unchanged: only when it runs, never what it computes, depends on the others.
+
 **Lanes.** :func:`search_lanes` runs generators of searches (a capture window's searches run one after another,
 each starting where the one before stopped): a lane yields a task, is sent its outcome, and yields the next.
 

@@ -19,6 +19,8 @@ Method
     * Joint limits are bounds handled by a primal active set: a joint that leaves its range is clamped and held at
       the bound until the model gradient points back inside.
     * Long motions are solved in overlapping windows of ``segment`` frames (see :func:`_smooth_sequence`).
+    * Many paths: :func:`reconstruct_motions` solves P motions of one hand and root together, every decision taken
+      per path (a converged path is held while the others go on), so each result is :func:`reconstruct_motion`'s.
     * Collisions (§6, last paragraph, with §4.3's deepest-point rule): after smoothing, the deepest capsule-axis point
       of every penetrating phalanx becomes a constraint of the next round, and so does the lower end of every capsule
       that reaches below the table (:mod:`.reconstruct_bounds`); rounds alternate until no penetration is left.
@@ -49,6 +51,7 @@ import math
 
 import torch
 
+from .._tree import tree_map
 from ..hand.collision import rigid_inverse
 from ..conventions import check_finite, check_tensor, check_transforms
 from ..errors import InputTypeError, InputValueError, ShapeError
@@ -58,7 +61,7 @@ from .exact import capsule_penetration
 from .reconstruct_bounds import (SPEED_MARGIN, finger_pair_parts, ground_capsule_depth, ground_constraint_parts,
                                  table_constraint_parts, table_depth)
 
-__all__ = ["ContactTrack", "ReconstructStatus", "ReconstructResult", "reconstruct_motion"]
+__all__ = ["ContactTrack", "ReconstructStatus", "ReconstructResult", "reconstruct_motion", "reconstruct_motions"]
 from ._reconstruct_records import (_Layout, _FRAME_SCALE, _SOLVE_DTYPE, _STEP_TOL, ContactTrack, ReconstructResult,
                                    ReconstructStatus, _Constraints, _finger_layout, _Problem)
 from ._reconstruct_windows import _smooth_sequence
@@ -129,56 +132,108 @@ def reconstruct_motion(
 
     Raises ShapeError / InputTypeError / InputValueError naming the argument on bad input.
     """
-    q_search, root, contacts, object_pose, free, q_rest, hand, sdf = _validate(
-        hand, root, q_search, contacts, sdf, object_pose, free, q_rest, check)
+    return reconstruct_motions(
+        hand, root, q_search[None] if isinstance(q_search, torch.Tensor) and q_search.dim() == 2 else q_search,
+        [contacts], sdf=sdf, object_pose=object_pose, free=None if free is None else [free], q_rest=q_rest,
+        bend_weight=bend_weight, rest_weight=rest_weight, search_weight=search_weight, contact_weight=contact_weight,
+        max_outer=max_outer, max_inner=max_inner, step_tol=step_tol, penetration_tol=penetration_tol,
+        contact_tol=contact_tol, segment=segment, check=check, table_height=table_height,
+        max_joint_step=max_joint_step, finger_tol=finger_tol, ground=ground)[0]
+
+
+def reconstruct_motions(hand: HandModel, root: torch.Tensor, q_search: torch.Tensor, contacts, *, sdf=None,
+                        object_pose=None, free=None, q_rest=None, bend_weight: float = 0.1, rest_weight: float = 1e-3,
+                        search_weight: float = 1e-3, contact_weight: float = 1e5, max_outer: int = 5,
+                        max_inner: int = 30, step_tol: float = _STEP_TOL, penetration_tol: float = 1e-3,
+                        contact_tol: float = 1e-3, segment: int = 60, check: bool = False,
+                        table_height: float | None = None, max_joint_step: float | None = None,
+                        finger_tol: float | None = None, ground=None) -> list[ReconstructResult]:
+    """:func:`reconstruct_motion` of P paths of one hand in one root motion, solved together.
+
+    q_search: (P, T, D) radians; contacts: P :class:`ContactTrack` of T frames and the same number of slots;
+    free: None or P (T, F) bool masks; every other argument as :func:`reconstruct_motion`'s, shared by the paths.
+    Returns the P results, each the one :func:`reconstruct_motion` gives its path alone: every decision of the solve
+    (a window's convergence, multiplier steps, active sets, step lengths, collision rounds) is taken per path, and a
+    path that is done is held while the others go on; the paths share every kernel call.
+    """
+    if not isinstance(q_search, torch.Tensor) or q_search.dim() != 3 or q_search.shape[0] < 1:
+        raise ShapeError(f"q_search: expected shape (P, T, D) with P >= 1, got "
+                         f"{tuple(q_search.shape) if isinstance(q_search, torch.Tensor) else type(q_search).__name__}")
+    P = q_search.shape[0]
+    contacts = list(contacts)
+    if len(contacts) != P or (free is not None and len(free) != P):
+        raise ShapeError(f"contacts, free: expected {P} (one per path), got {len(contacts)}"
+                         f"{'' if free is None else f' and {len(free)}'}")
+    checked = [_validate(hand, root, q_search[k], contacts[k], sdf, object_pose, None if free is None else free[k],
+                         q_rest, check) for k in range(P)]
+    if len({c[2].slots for c in checked}) > 1:
+        raise ShapeError(f"contacts: expected the same number of slots for every path, got "
+                         f"{sorted({c[2].slots for c in checked})}")
+    _, root, _, object_pose, _, q_rest, hand, sdf = checked[0]
     _check_settings(nonnegative=dict(bend_weight=bend_weight, rest_weight=rest_weight, search_weight=search_weight),
                     positive=dict(contact_weight=contact_weight, penetration_tol=penetration_tol,
                                   contact_tol=contact_tol, step_tol=step_tol),
                     counts=dict(max_outer=(max_outer, 1), max_inner=(max_inner, 1), segment=(segment, 8)))
-    T, F = q_search.shape[0], hand.num_fingers
+    tracks = [c[2] for c in checked]
+    T, F = q_search.shape[1], hand.num_fingers
     layout = _finger_layout(hand)
     q_rest = hand.clamp_to_limits(q_rest[None])[0]
-    q = hand.clamp_to_limits(q_search)
+    q = hand.clamp_to_limits(torch.stack([c[0] for c in checked]).flatten(0, 1)).view(P, T, -1)
 
     problem, eq, lam_eq, ineq, lam_in = _build_problem(
-        hand, layout, root, q, q_rest, free, contacts, bend_weight=bend_weight, rest_weight=rest_weight,
-        search_weight=search_weight, contact_weight=contact_weight, contact_tol=contact_tol,
+        hand, layout, root, q, q_rest, torch.stack([c[4] for c in checked]), tracks, bend_weight=bend_weight,
+        rest_weight=rest_weight, search_weight=search_weight, contact_weight=contact_weight, contact_tol=contact_tol,
         penetration_tol=penetration_tol, max_inner=max_inner, step_tol=step_tol, max_joint_step=max_joint_step)
     # Collision points are pushed this far past the surface, so that the next round finds the capsule outside.
     margin = 0.5 * penetration_tol
 
-    penetration = q.new_zeros(T)
+    penetration = q.new_zeros(P, T)
     object_inv = None if object_pose is None else rigid_inverse(object_pose)
-    rounds, table = 0, (ground if ground is not None else table_height)
-    for rounds in range(1, max_outer + 1):
+    table = ground if ground is not None else table_height
+    running = torch.ones(P, dtype=torch.bool, device=q.device)
+    rounds = [0] * P
+    for r in range(1, max_outer + 1):
+        rounds = [r if go else k for go, k in zip(running.tolist(), rounds)]
         if F > 0:
-            q, lam_eq, lam_in = _smooth_sequence(problem, q, eq, ineq, lam_eq, lam_in, segment)
+            q, lam_eq, lam_in = _smooth_sequence(problem, q, eq, ineq, lam_eq, lam_in, segment, running)
         if sdf is None and table is None and finger_tol is None:
             break
-        new, penetration, over = _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table,
-                                                  finger_tol, margin)
-        if rounds == max_outer or not (over or bool((penetration > penetration_tol).any())):
+        new, pen, over = _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table, finger_tol,
+                                          margin)
+        penetration = torch.where(running[:, None], pen, penetration)
+        kept = [c.mask.flatten(1).any(1) for c in new]          # per path: blocks with a constraint
+        go_on = running & (over | (pen > penetration_tol).any(1)) & torch.stack(kept).any(0) if kept else \
+            torch.zeros_like(running)
+        if r == max_outer or not bool(go_on.any()):
             break
-        new = [c for c in new if bool(c.mask.any())]
-        if not new:
-            break  # what penetrates is the palm or a palm-level link: the root pose places it
-        for c in new:
-            ineq = ineq.cat(c)
-            lam_in = torch.cat([lam_in, lam_in.new_zeros(T, c.mask.shape[1])], dim=1)
+        # what penetrates where no block has a constraint is the palm or a palm-level link: the root pose places it
+        for c, has in zip(new, kept):
+            ineq = ineq.cat(_masked(c, (has & go_on)[:, None, None]))
+            lam_in = torch.cat([lam_in, lam_in.new_zeros(P, T, c.mask.shape[2])], dim=2)
+        running = go_on
 
-    return _result(problem, q, contacts, penetration, rounds)
+    return [_result(problem, q[k], tracks[k], penetration[k], rounds[k]) for k in range(P)]
+
+
+def _masked(c: _Constraints, keep: torch.Tensor) -> _Constraints:
+    """Constraints (P, T, C) with only the slots where ``keep`` (broadcast to (P, T, C)) stays set; the others hold
+    zeros (they add exact zeros to the normal equations and the merit)."""
+    mask = c.mask & keep
+    zero = lambda t: torch.where(mask[..., None], t, torch.zeros_like(t))  # noqa: E731
+    return _Constraints(link=c.link, finger=c.finger, local=zero(c.local), target=zero(c.target), mask=mask,
+                        normal=zero(c.normal))
 
 
 def _build_problem(hand, layout, root, q, q_rest, free, contacts, *, bend_weight, rest_weight, search_weight,
                    contact_weight, contact_tol, penetration_tol, max_inner, step_tol, max_joint_step):
-    """The smoothing problem of :func:`reconstruct_motion`: the prior pose per frame and finger, the settings, the
-    contact constraints (equalities) and no collision constraints yet, with zero multipliers.
-    Returns problem, eq, lam_eq, ineq, lam_in."""
-    T, dt, dev = q.shape[0], q.dtype, q.device
+    """The smoothing problem of :func:`reconstruct_motions` for q (P, T, D), free (P, T, F) and P contact tracks: the
+    prior pose per path, frame and finger, the settings, the contact constraints (equalities) and no collision
+    constraints yet, with zero multipliers. Returns problem, eq, lam_eq, ineq, lam_in (all (P, T, ...))."""
+    P, T, dt, dev = q.shape[0], q.shape[1], q.dtype, q.device
     # Prior pose per frame and finger (Deviation from the paper: see the module docstring).
     F = hand.num_fingers
     free_l = free.unsqueeze(-1)
-    prior_target = torch.where(free_l, q_rest[layout.joints].expand(T, F, -1), q[:, layout.joints])
+    prior_target = torch.where(free_l, q_rest[layout.joints].expand(P, T, F, -1), q[:, :, layout.joints])
     prior_weight = torch.where(free, q.new_tensor(rest_weight), q.new_tensor(search_weight))
     L = hand.num_links
     eye = torch.cat([torch.zeros(1, 3, dtype=dt, device=dev), _FRAME_SCALE * torch.eye(3, dtype=dt, device=dev)])
@@ -188,24 +243,37 @@ def _build_problem(hand, layout, root, q, q_rest, free, contacts, *, bend_weight
                        frame_links=torch.arange(L, device=dev).repeat_interleave(4), frame_points=eye.repeat(L, 1),
                        joint_step=None if max_joint_step is None else SPEED_MARGIN * float(max_joint_step))
 
-    link_safe = contacts.link.clamp(0, L - 1)
+    link, mask = torch.stack([c.link for c in contacts]), torch.stack([c.mask for c in contacts])
+    point_local, target = torch.stack([c.point_local for c in contacts]), torch.stack([c.target for c in contacts])
+    link_safe = link.clamp(0, L - 1)
     finger = hand.link_finger[link_safe]
-    used = contacts.mask[..., None]  # padding slots may hold anything, NaN included
-    eq = _Constraints(link=link_safe, finger=finger.clamp(min=0), mask=contacts.mask & (finger >= 0),
-                      local=torch.where(used, contacts.point_local, torch.zeros_like(contacts.point_local)),
-                      target=torch.where(used, contacts.target, torch.zeros_like(contacts.target)))
-    lam_eq = q.new_zeros(T, contacts.slots, 3, dtype=_SOLVE_DTYPE)
-    ineq = _collision_constraints(hand, layout, None, 0.0, q)  # none yet
-    lam_in = q.new_zeros(T, 0, dtype=_SOLVE_DTYPE)
+    used = mask[..., None]  # padding slots may hold anything, NaN included
+    eq = _Constraints(link=link_safe, finger=finger.clamp(min=0), mask=mask & (finger >= 0),
+                      local=torch.where(used, point_local, torch.zeros_like(point_local)),
+                      target=torch.where(used, target, torch.zeros_like(target)))
+    lam_eq = q.new_zeros(P, T, link.shape[2], 3, dtype=_SOLVE_DTYPE)
+    ineq = _per_path(_collision_constraints(hand, layout, None, 0.0, q.flatten(0, 1)), P)  # none yet
+    lam_in = q.new_zeros(P, T, 0, dtype=_SOLVE_DTYPE)
     return problem, eq, lam_eq, ineq, lam_in
 
 
+def _per_path(c: _Constraints, P: int) -> _Constraints:
+    """Constraints of P T rows as (P, T, ...)."""
+    return tree_map(lambda t: t.view(P, t.shape[0] // P, *t.shape[1:]), c)
+
+
 def _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table, finger_tol, margin):
-    """One collision round of :func:`reconstruct_motion`: the penetration of the smoothed motion (object, table) and
-    the new inequality constraints that push capsules out (object, table, other fingers). ``table``: a table
-    height, a :class:`~torchhand.geometry.ground.Ground` or None.
-    Returns the new constraints, the penetration per frame (T,) and whether fingers overlap beyond ``finger_tol``."""
-    T = q.shape[0]
+    """One collision round of :func:`reconstruct_motions`: the penetration of the smoothed motions q (P, T, D) (object,
+    table) and the new inequality constraints that push capsules out (object, table, other fingers). ``table``: a
+    table height, a :class:`~torchhand.geometry.ground.Ground` or None. Returns the new constraint blocks
+    (P, T, ...), the penetration per path and frame (P, T) and whether a path's fingers overlap beyond
+    ``finger_tol`` (P,) bool."""
+    P = q.shape[0]
+    q = q.flatten(0, 1)
+    T = q.shape[0]                                   # rows: P T
+    root = root.repeat(P, 1, 1)
+    if object_pose is not None:
+        object_pose, object_inv = object_pose.repeat(P, 1, 1), object_inv.repeat(P, 1, 1)
     poses = hand.forward_kinematics(q, root)
     new = []
     penetration = q.new_zeros(T)
@@ -219,13 +287,13 @@ def _collision_round(hand, layout, q, root, sdf, object_pose, object_inv, table,
                  else ground_capsule_depth(ground, hand, poses)[0])[:, layout.movable]
         penetration = torch.maximum(penetration, below.amax(1).clamp_min(0) if below.shape[1] else penetration)
         new.append(_table_constraints(hand, layout, poses, table, margin))
-    over = False
+    over = torch.zeros(P, dtype=torch.bool, device=q.device)
     if finger_tol is not None:
         overlap, link, local, target, normal, mask = finger_pair_parts(hand, poses, layout.movable, margin)
-        over = bool((overlap > finger_tol).any())
+        over = (overlap > finger_tol).view(P, -1).any(1)
         new.append(_Constraints(link=link, finger=hand.link_finger[link].clamp(min=0), local=local, target=target,
                                 mask=mask & (overlap > 0.5 * finger_tol).repeat(1, 2), normal=normal))
-    return new, penetration, over
+    return [_per_path(c, P) for c in new], penetration.view(P, -1), over
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -130,9 +130,9 @@ def speed_penalty(xl: torch.Tensor, valid: torch.Tensor, step: float, lam: torch
 
 
 def speed_update(xl: torch.Tensor, valid: torch.Tensor, step: float, lam: torch.Tensor, rho: float):
-    """Multiplier step lam <- max(0, lam - rho g) and the worst violation max(0, -g) (a float, radians)."""
+    """Multiplier step lam <- max(0, lam - rho g) and each finger's worst violation max(0, -g), (F,) radians."""
     g = speed_values(xl, step)
-    worst = float((-g * valid[:, None, :, None]).max().clamp_min(0)) if g.numel() else 0.0
+    worst = (-g * valid[:, None, :, None]).amax((1, 2, 3)).clamp_min(0) if g.numel() else xl.new_zeros(xl.shape[0])
     return (lam - rho * g).clamp_min(0), worst
 
 
