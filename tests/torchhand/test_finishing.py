@@ -62,6 +62,7 @@ def test_seeds_finish_their_paths_together_as_alone(scene, searched, monkeypatch
     real_rec, real_eval = finishing.reconstruct_paths, finishing.evaluate_motions
     monkeypatch.setattr(finishing, "reconstruct_paths", lambda w: sizes["reconstruct"].append(len(w)) or real_rec(w))
     monkeypatch.setattr(finishing, "evaluate_motions", lambda w: sizes["evaluate"].append(len(w)) or real_eval(w))
+    monkeypatch.setattr(finishing, "CPU_MAX_PATHS", None)           # the paths' reconstructions in one call here
     batch = synthesize_seeds(scene, SEEDS, multi_stats=stats, **OPTIONS)
     assert sum(len(r.finals) for r in alone.values()) >= 4
     assert stats.finish_batches > 0 and max(stats.finish_sizes) >= 3      # several paths' work in one batch

@@ -192,12 +192,13 @@ def _path_max(v: torch.Tensor, mask: torch.Tensor, P: int) -> torch.Tensor:
 
 def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, lam_eq, J_in, g_in, lam_in,
                        lam_v=None):
-    """Minimiser of the window's linearised problem with ``frozen`` entries held at ``values`` (F, S, n), and the
-    model gradient there (F, S, n).
+    """Minimiser of the window's linearised problem with ``frozen`` entries held at ``values`` (P F, S, n), and the
+    model gradient there (P F, S, n).
 
-    Which one-sided constraints are active is decided on the linear model: start from those violated now and add
-    those the solution would violate until the set stops growing (a point pushed out by one step must not be let
-    go at the next and fall back in).
+    Which one-sided constraints are active is decided on the linear model, per path: start from those violated now
+    and add those the solution would violate until the set stops growing (a point pushed out by one step must not
+    be let go at the next and fall back in). A path whose set has stopped growing keeps that round's solve and
+    leaves the rounds.
     """
     PF, S, n = xl.shape
     P = w.paths
@@ -210,43 +211,41 @@ def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, 
     rows_in = (normal[..., None] * J_in).sum(2)  # (R, C, n)
     active = w.m_in & (lam_in / p.rho - g_in > 0)
     speed = lam_v is not None
-    if speed:
-        active_v = lam_v / p.rho_speed - speed_values(xl, p.joint_step) > 0
-    # Per path: its solve of the round in which its active set stopped growing (at once without one-sided
-    # constraints), else of the last round.
-    finished = torch.zeros(P, dtype=torch.bool, device=xl.device)
-    no_ineq = finished if speed else ~w.m_in.view(P, -1).any(1)
-    out_sol = out_grad = None
+    active_v = lam_v / p.rho_speed - speed_values(xl, p.joint_step) > 0 if speed else None
+    # without one-sided constraints (and no speed bound) the first solve is the answer
+    no_ineq = torch.zeros(P, dtype=torch.bool, device=xl.device) if speed else ~w.m_in.view(P, -1).any(1)
+    out_sol, out_grad = xl.new_empty(PF, S * n), xl.new_empty(PF, S * n)
+    todo = torch.arange(P, device=xl.device)                    # the paths whose active set may still grow
     for _ in range(_ACTIVE_SET_ROUNDS):
-        blk_in, rhs_in = _constraint_terms(p, w, xl, w.ineq, J_in, g_in, lam_in, active, normal)
-        H = H_eq.clone()
+        full = len(todo) == P
+        r, b = _rows_index(todo, S), _rows_index(todo, F)
+        ws = w if full else _subset(w, todo, S, F)
+        take = (lambda t, i: t) if full else (lambda t, i: t[i])  # noqa: E731
+        xs, act, lam_s = take(xl, b), take(active, r), take(lam_v, b) if speed else None
+        g, lam, nrm = take(g_in, r), take(lam_in, r), take(normal, r)
+        blk_in, rhs_in = _constraint_terms(p, ws, xs, ws.ineq, take(J_in, r), g, lam, act, nrm)
+        H = H_eq.clone() if full else H_eq[b]
         _add_block_diagonal(H, blk_in)
-        b = b_eq + rhs_in.reshape(PF, S * n)
+        rhs_all = take(b_eq, b) + rhs_in.reshape(len(b), S * n)
         if speed:
-            H_v, b_v = speed_terms(xl, w.valid, p.joint_step, lam_v, p.rho_speed, active_v)
-            H, b = H + H_v, b + b_v
-        sol = _solve_frozen(H, b, frozen.reshape(PF, S * n), values.reshape(PF, S * n))
-        grad = (H @ sol.unsqueeze(-1)).squeeze(-1) - b
-        if out_sol is None:
-            out_sol, out_grad = sol, grad
-        else:
-            take = (~finished).repeat_interleave(F)[:, None]
-            out_sol, out_grad = torch.where(take, sol, out_sol), torch.where(take, grad, out_grad)
-        stop = no_ineq
-        if not bool((finished | stop).all()):
-            moved = _rows_of(sol.view(PF, S, n) - xl, P).gather(1, w.ineq.finger[..., None].expand(-1, -1, n))
-            grown = active | (w.m_in & (lam_in / p.rho - (g_in + (rows_in * moved).sum(-1)) > 0))
-            same = (grown == active).view(P, -1).all(1)
+            H_v, b_v = speed_terms(xs, ws.valid, p.joint_step, lam_s, p.rho_speed, take(active_v, b))
+            H, rhs_all = H + H_v, rhs_all + b_v
+        sol = _solve_frozen(H, rhs_all, take(frozen, b).reshape(-1, S * n), take(values, b).reshape(-1, S * n))
+        out_sol[b] = sol
+        out_grad[b] = (H @ sol.unsqueeze(-1)).squeeze(-1) - rhs_all
+        stop = no_ineq[todo]
+        if not bool(stop.all()):
+            moved = _rows_of(sol.view(-1, S, n) - xs, len(todo)).gather(1, ws.ineq.finger[..., None].expand(-1, -1, n))
+            grown = act | (ws.m_in & (lam / p.rho - (g + (take(rows_in, r) * moved).sum(-1)) > 0))
+            same = (grown == act).view(len(todo), -1).all(1)
             if speed:
-                grown_v = active_v | (lam_v / p.rho_speed - speed_values(sol.view(PF, S, n), p.joint_step) > 0)
-                same = same & (grown_v == active_v).view(P, -1).all(1)
+                grown_v = take(active_v, b) | (lam_s / p.rho_speed - speed_values(sol.view(-1, S, n), p.joint_step) > 0)
+                same = same & (grown_v == take(active_v, b)).view(len(todo), -1).all(1)
+                active_v = active_v.index_copy(0, b, grown_v)
             stop = stop | same
-            keep = finished | stop
-            active = torch.where(keep.repeat_interleave(S)[:, None], active, grown)
-            if speed:
-                active_v = torch.where(keep.repeat_interleave(F)[:, None, None, None], active_v, grown_v)
-        finished = finished | stop
-        if bool(finished.all()):
+            active = active.index_copy(0, r, torch.where(stop.repeat_interleave(S)[:, None], act, grown))
+        todo = todo[~stop]
+        if not todo.numel():
             break
     return out_sol.view(PF, S, n), out_grad.view(PF, S, n)
 
@@ -267,20 +266,35 @@ def _limit_step(w: _Window, xl, sol, grad, at_bound, bound_value):
 def _backtrack(p: _Problem, w: _Window, x, xl, d, residuals, lam_eq, lam_in, lam_v=None) -> torch.Tensor:
     """Step length per finger, (P F, 1, 1): halved until the merit does not rise (0 if it always does). The
     Gauss–Newton model ignores the constraints' curvature, which dominates the weak priors in the directions the
-    contacts leave free, so full steps can overshoot. A finger's merit depends on its own joints only, so halving
-    on for other fingers leaves its step as it is."""
+    contacts leave free, so full steps can overshoot. A path is tried again only while one of its fingers' merit
+    rose (a finger's merit depends on its own joints only)."""
+    PF, S = xl.shape[:2]
+    P = w.paths
+    F = PF // P
     merit0 = _merit(p, w, xl, *residuals, lam_eq, lam_in, lam_v)
-    alpha = xl.new_ones(xl.shape[0], 1, 1)
+    alpha = xl.new_ones(PF, 1, 1)
+    worse = torch.zeros(PF, dtype=torch.bool, device=xl.device)
+    todo = torch.arange(P, device=xl.device)
     for _ in range(_BACKTRACK_STEPS):
-        trial = xl + alpha * d
-        poses = p.hand.forward_kinematics(_to_global(x, p.layout, trial).flatten(0, 1), w.root)
-        merit1 = _merit(p, w, trial, *_residuals(w.eq, w.ineq, _positions(poses, w.eq), _positions(poses, w.ineq)),
-                        lam_eq, lam_in, lam_v)
-        worse = merit1 > merit0 + 1e-12 * merit0.abs()
-        if not bool(worse.any()):
-            return alpha
-        alpha = torch.where(worse[:, None, None], alpha / 2, alpha)
-    return torch.where(worse[:, None, None], torch.zeros_like(alpha), alpha)
+        full = len(todo) == P
+        r, b = _rows_index(todo, S), _rows_index(todo, F)
+        ws = w if full else _subset(w, todo, S, F)
+        take = (lambda t, i: t) if full else (lambda t, i: t[i])  # noqa: E731
+        trial = take(xl, b) + take(alpha, b) * take(d, b)
+        poses = p.hand.forward_kinematics(_to_global(take(x, todo), p.layout, trial).flatten(0, 1), ws.root)
+        merit1 = _merit(p, ws, trial, *_residuals(ws.eq, ws.ineq, _positions(poses, ws.eq),
+                                                  _positions(poses, ws.ineq)),
+                        take(lam_eq, r), take(lam_in, r), take(lam_v, b) if lam_v is not None else None)
+        m0 = take(merit0, b)
+        rose = merit1 > m0 + 1e-12 * m0.abs()
+        worse = worse.index_copy(0, b, rose)
+        if not bool(rose.any()):
+            break
+        alpha = alpha.index_copy(0, b, torch.where(rose[:, None, None], take(alpha, b) / 2, take(alpha, b)))
+        todo = todo[rose.view(len(todo), F).any(1)]
+    else:
+        return torch.where(worse[:, None, None], torch.zeros_like(alpha), alpha)
+    return alpha
 
 
 def _to_global(x: torch.Tensor, lay: _Layout, xl: torch.Tensor) -> torch.Tensor:

@@ -33,9 +33,9 @@ from .problem import SynthesisProblem, frames_key, node_context
 from .reconstruct import ContactTrack, reconstruct_motions
 from .search import Solution
 
-__all__ = ["FinalSolution", "Reconstruct", "Evaluate", "finalize_solution", "finalize_steps", "drive", "drive_many", "clocked",
-           "run_works",
-           "evaluate_motions", "reconstruct_paths", "held_before", "max_joint_speed"]
+__all__ = ["FinalSolution", "Reconstruct", "Evaluate", "finalize_solution", "finalize_steps", "drive", "drive_many",
+           "clocked", "run_works", "evaluate_motions", "reconstruct_paths", "reconstruct_paths_together",
+           "CPU_MAX_PATHS", "held_before", "max_joint_speed"]
 
 
 @dataclass(frozen=True)
@@ -304,9 +304,25 @@ def _reconstruct_path(problem: SynthesisProblem, sol: Solution, ns: NodeTestSett
     return reconstruct_paths([Reconstruct(problem, sol, ns, joint_speed, settings)])[0]
 
 
+CPU_MAX_PATHS = 1
+"""On a CPU, :func:`reconstruct_paths` reconstructs at most this many paths per call (None: all). The reconstruction's
+time on a CPU is its dense float64 factorisations and the (S n)^2 matrices of every finger, which leave the cache as
+the batch grows: on two cores 8 of box-turn's paths took 16.7 s one at a time, 17.8 s in pairs and 19.5 s in fours
+(BENCHMARKS.md, "Finishing side by side"). A GPU takes them in one call. No choice changes a result."""
+
+
 def reconstruct_paths(works: list) -> list:
     """The reconstructions of :class:`Reconstruct` works of one key (one problem and setting), q (T, H, D) each: per
-    hand, the paths in one :func:`~.reconstruct.reconstruct_motions` (each result is its path's alone)."""
+    hand, the paths in one :func:`~.reconstruct.reconstruct_motions` (each result is its path's alone; on a CPU in
+    calls of :data:`CPU_MAX_PATHS`)."""
+    most = CPU_MAX_PATHS if works[0].sol.q.device.type == "cpu" else None
+    if most is not None and len(works) > most:
+        return [q for i in range(0, len(works), most) for q in reconstruct_paths_together(works[i:i + most])]
+    return reconstruct_paths_together(works)
+
+
+def reconstruct_paths_together(works: list) -> list:
+    """:func:`reconstruct_paths` in one call per hand, whatever the device."""
     lead = works[0]
     problem, ns = lead.problem, lead.ns
     per_hand = []
