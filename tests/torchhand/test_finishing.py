@@ -129,6 +129,26 @@ def test_a_finishing_program_yields_its_work_and_returns_the_verdict(searched):
         assert torch.equal(fin.q, again.q) and torch.equal(fin.c_force, again.c_force)
 
 
+def test_paths_per_reconstruction_call(searched, monkeypatch):
+    """A CPU takes ``CPU_MAX_PATHS`` paths per call, a GPU all of them; a problem with a one-finger hand always one
+    path per call (and the chunked calls return each path's own result, in order)."""
+    paths, _ = searched
+    problem, sol, kw = paths[SEEDS[0]][0]
+    assert finishing.paths_per_call(problem, "cpu") == finishing.CPU_MAX_PATHS
+    assert finishing.paths_per_call(problem, "cuda") is None
+    one = dataclasses.replace(problem.hands[0], finger_names=problem.hands[0].finger_names[:1])
+    assert finishing.paths_per_call(dataclasses.replace(problem, hands=(one,)), "cuda") == 1
+    works = [Reconstruct(problem, s, k["ns"], k["joint_speed"], finishing._RECONSTRUCTIONS[0])
+             for p in SEEDS[:2] for _, s, k in paths[p][:1]]
+    calls = []
+    real = finishing.reconstruct_paths_together
+    monkeypatch.setattr(finishing, "reconstruct_paths_together", lambda w: calls.append(len(w)) or real(w))
+    monkeypatch.setattr(finishing, "CPU_MAX_PATHS", 1)
+    got = finishing.reconstruct_paths(works)
+    assert calls == [1] * len(works)
+    assert all(torch.equal(g, w.run()) for g, w in zip(got, works))
+
+
 def test_an_error_in_finishing_work_ends_its_search(scene, monkeypatch):
     """Work that raises is run again alone, and its error is raised inside the search that waits on it: here every
     evaluation fails, so the batch of seeds stops with that error (``search_many`` raises it) instead of hanging."""

@@ -35,7 +35,7 @@ from .search import Solution
 
 __all__ = ["FinalSolution", "Reconstruct", "Evaluate", "finalize_solution", "finalize_steps", "drive", "drive_many",
            "clocked", "run_works", "evaluate_motions", "reconstruct_paths", "reconstruct_paths_together",
-           "CPU_MAX_PATHS", "held_before", "max_joint_speed"]
+           "paths_per_call", "CPU_MAX_PATHS", "held_before", "max_joint_speed"]
 
 
 @dataclass(frozen=True)
@@ -315,10 +315,19 @@ def reconstruct_paths(works: list) -> list:
     """The reconstructions of :class:`Reconstruct` works of one key (one problem and setting), q (T, H, D) each: per
     hand, the paths in one :func:`~.reconstruct.reconstruct_motions` (each result is its path's alone; on a CPU in
     calls of :data:`CPU_MAX_PATHS`)."""
-    most = CPU_MAX_PATHS if works[0].sol.q.device.type == "cpu" else None
+    most = paths_per_call(works[0].problem, works[0].sol.q.device)
     if most is not None and len(works) > most:
         return [q for i in range(0, len(works), most) for q in reconstruct_paths_together(works[i:i + most])]
     return reconstruct_paths_together(works)
+
+
+def paths_per_call(problem: SynthesisProblem, device: torch.device) -> int | None:
+    """How many paths :func:`reconstruct_paths` reconstructs per call (None: all): :data:`CPU_MAX_PATHS` on a CPU, and
+    one path per call for a problem with a one-finger hand, whose lone finger matrices a batch would multiply with
+    other kernels than alone (with two fingers or more, alone is already a batch of matrices)."""
+    if any(hand.num_fingers < 2 for hand in problem.hands):
+        return 1
+    return CPU_MAX_PATHS if torch.device(device).type == "cpu" else None
 
 
 def reconstruct_paths_together(works: list) -> list:
