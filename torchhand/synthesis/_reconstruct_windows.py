@@ -172,6 +172,15 @@ def _subset(w: _Window, keep: torch.Tensor, S: int, F: int) -> _Window:
                    paths=len(keep), valid=w.valid[b])
 
 
+def _paths_view(w: _Window, todo: torch.Tensor, S: int, F: int):
+    """For the batch's paths ``todo``: their rows (len(todo) S,), their finger blocks (len(todo) F,), their window,
+    and ``take(t, index)``, a tensor's entries at the index (``t`` itself when ``todo`` is every path)."""
+    r, b = _rows_index(todo, S), _rows_index(todo, F)
+    if len(todo) == w.paths:
+        return r, b, w, lambda t, i: t
+    return r, b, _subset(w, todo, S, F), lambda t, i: t[i]
+
+
 def _write_back(out: list, ids: torch.Tensor, which: torch.Tensor, x, lam_eq, lam_in, S: int) -> None:
     """Put the batch's paths ``which`` (bool, per batch path) into ``out`` (x, lam_eq, lam_in of all paths)."""
     local = which.nonzero().squeeze(1)
@@ -217,14 +226,11 @@ def _gauss_newton_step(p: _Problem, w: _Window, xl, frozen, values, J_eq, c_eq, 
     out_sol, out_grad = xl.new_empty(PF, S * n), xl.new_empty(PF, S * n)
     todo = torch.arange(P, device=xl.device)                    # the paths whose active set may still grow
     for _ in range(_ACTIVE_SET_ROUNDS):
-        full = len(todo) == P
-        r, b = _rows_index(todo, S), _rows_index(todo, F)
-        ws = w if full else _subset(w, todo, S, F)
-        take = (lambda t, i: t) if full else (lambda t, i: t[i])  # noqa: E731
+        r, b, ws, take = _paths_view(w, todo, S, F)
         xs, act, lam_s = take(xl, b), take(active, r), take(lam_v, b) if speed else None
         g, lam, nrm = take(g_in, r), take(lam_in, r), take(normal, r)
         blk_in, rhs_in = _constraint_terms(p, ws, xs, ws.ineq, take(J_in, r), g, lam, act, nrm)
-        H = H_eq.clone() if full else H_eq[b]
+        H = H_eq[b]                                             # a copy: the blocks are added in place
         _add_block_diagonal(H, blk_in)
         rhs_all = take(b_eq, b) + rhs_in.reshape(len(b), S * n)
         if speed:
@@ -276,10 +282,7 @@ def _backtrack(p: _Problem, w: _Window, x, xl, d, residuals, lam_eq, lam_in, lam
     worse = torch.zeros(PF, dtype=torch.bool, device=xl.device)
     todo = torch.arange(P, device=xl.device)
     for _ in range(_BACKTRACK_STEPS):
-        full = len(todo) == P
-        r, b = _rows_index(todo, S), _rows_index(todo, F)
-        ws = w if full else _subset(w, todo, S, F)
-        take = (lambda t, i: t) if full else (lambda t, i: t[i])  # noqa: E731
+        r, b, ws, take = _paths_view(w, todo, S, F)
         trial = take(xl, b) + take(alpha, b) * take(d, b)
         poses = p.hand.forward_kinematics(_to_global(take(x, todo), p.layout, trial).flatten(0, 1), ws.root)
         merit1 = _merit(p, ws, trial, *_residuals(ws.eq, ws.ineq, _positions(poses, ws.eq),
@@ -292,9 +295,8 @@ def _backtrack(p: _Problem, w: _Window, x, xl, d, residuals, lam_eq, lam_in, lam
             break
         alpha = alpha.index_copy(0, b, torch.where(rose[:, None, None], take(alpha, b) / 2, take(alpha, b)))
         todo = todo[rose.view(len(todo), F).any(1)]
-    else:
-        return torch.where(worse[:, None, None], torch.zeros_like(alpha), alpha)
-    return alpha
+    # a finger whose merit still rose after the last halving takes no step (after a break, none did)
+    return torch.where(worse[:, None, None], torch.zeros_like(alpha), alpha)
 
 
 def _to_global(x: torch.Tensor, lay: _Layout, xl: torch.Tensor) -> torch.Tensor:
